@@ -1,0 +1,211 @@
+"""Autograd glue: torch ``autograd.Function`` wrappers around the Warp launches.
+
+Both shading kernels (``render`` and the fused rendering loss) share one argument
+prefix (maps, light, camera, scene constants, chunk offsets), one chunked launcher and
+one backward. Warp traps handled here (Warp's torch interop notes): the output adjoint
+handed to Warp is always a private copy (Warp consumes it), gradients returned to torch
+are fresh buffers, and CUDA launches run on torch's current stream.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import warp as wp
+
+from kernels._image_kernels import build_image_kernels
+from kernels._render_kernels import build_render_kernels
+from kernels._warp import chunk_bounds, parallel_chunks, warp_device, warp_scalar, wp_array
+
+__all__ = ["Scene", "RenderFunction", "RenderLogL1Function", "RowLossFunction"]
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Scene constants of one launch (a resolved RenderPreset)."""
+
+    plane_size: float
+    intensity: tuple[float, float, float]
+    inverse_square: bool
+    roughness_floor: float
+
+
+def _stream(device: torch.device):
+    return wp.stream_from_torch() if device.type == "cuda" else None
+
+
+def _shading_chunks(batch: int, height: int, device: torch.device) -> tuple[str, list[tuple[int, int]]]:
+    """Split over the batch when it feeds every thread, else over image rows."""
+    by_batch = chunk_bounds(batch, device)
+    by_rows = chunk_bounds(height, device)
+    if len(by_batch) >= len(by_rows):
+        return "batch", by_batch
+    return "rows", by_rows
+
+
+def _shading_kernel(name: str, dtype: torch.dtype):
+    F = warp_scalar(dtype)
+    if name == "render":
+        return F, build_render_kernels(F).V3, build_render_kernels(F).render
+    return F, build_image_kernels(F).V3, build_image_kernels(F).render_log_l1
+
+
+def _launch_shading(name, maps, light, camera, scene, extra, output, *, grads=None, extra_adj=None, adj_output=None):
+    """Launch a shading kernel (forward, or adjoint when ``grads`` is given) in chunks.
+
+    ``extra``: the kernel's trailing inputs (torch tensors or scalars); ``grads``: (four
+    map gradient buffers, per-chunk light buffers, per-chunk camera buffers).
+    """
+    b, _, h, w = maps[0].shape
+    device = maps[0].device
+    F, V3, kernel = _shading_kernel(name, maps[0].dtype)
+    axis, chunks = _shading_chunks(b, h, device)
+    to_wp = lambda x: wp_array(x) if isinstance(x, torch.Tensor) else x  # noqa: E731
+    head = [*(wp_array(t) for t in maps), wp_array(light), wp_array(camera)]
+    consts = [V3(*scene.intensity), F(scene.plane_size), int(scene.inverse_square), F(scene.roughness_floor)]
+    tail = [to_wp(x) for x in extra]
+    wout = wp_array(output)
+    if grads is not None:
+        adj_maps = [wp_array(t) for t in grads[0]]
+        adj_consts = [V3(F(0.0), F(0.0), F(0.0)), F(0.0), 0, F(0.0)]
+        adj_tail = [to_wp(x) for x in extra_adj]
+        wadj_out = wp_array(adj_output)
+
+    def launch(index: int, start: int, count: int) -> None:
+        offsets = [start, 0] if axis == "batch" else [0, start]
+        dim = (count, h, w) if axis == "batch" else (b, count, w)
+        inputs = [*head, *consts, *offsets, *tail]
+        kwargs = dict(dim=dim, inputs=inputs, outputs=[wout], device=warp_device(device), stream=_stream(device))
+        if grads is None:
+            wp.launch(kernel, **kwargs)
+            return
+        adj_pos = [wp_array(grads[1][index]), wp_array(grads[2][index])]
+        wp.launch(
+            kernel, **kwargs, adjoint=True,
+            adj_inputs=[*adj_maps, *adj_pos, *adj_consts, 0, 0, *adj_tail], adj_outputs=[wadj_out],
+        )
+
+    parallel_chunks(chunks, launch)
+
+
+def _shading_backward(name, maps, light, camera, scene, extra, extra_adj, output, grad_output):
+    grads = [torch.zeros_like(t) for t in maps]
+    axis, chunks = _shading_chunks(maps[0].shape[0], maps[0].shape[2], maps[0].device)
+    # Row chunks of one batch item add into the same light/camera gradient: each chunk
+    # gets its own buffer, summed after. Batch chunks write disjoint rows of one buffer.
+    if axis == "batch":
+        light_adj, camera_adj = [torch.zeros_like(light)] * len(chunks), [torch.zeros_like(camera)] * len(chunks)
+        unique = 1
+    else:
+        light_adj = [torch.zeros_like(light) for _ in chunks]
+        camera_adj = [torch.zeros_like(camera) for _ in chunks]
+        unique = len(chunks)
+    # Warp consumes (zeroes) the output adjoint it is given: hand it a private copy.
+    _launch_shading(
+        name, maps, light, camera, scene, extra, output,
+        grads=(grads, light_adj, camera_adj), extra_adj=extra_adj,
+        adj_output=grad_output.contiguous().clone(),
+    )
+    return grads, sum(light_adj[:unique]), sum(camera_adj[:unique])
+
+
+class RenderFunction(torch.autograd.Function):
+    """maps, light [B,K,3], camera [B,K,3], Scene -> radiance [B,K,3,H,W]."""
+
+    @staticmethod
+    def forward(ctx, diffuse, normal, roughness, specular, light, camera, scene: Scene):
+        maps = [t.contiguous() for t in (diffuse, normal, roughness, specular)]
+        light, camera = light.contiguous(), camera.contiguous()
+        b, _, h, w = diffuse.shape
+        out = torch.empty((b, light.shape[1], 3, h, w), dtype=diffuse.dtype, device=diffuse.device)
+        _launch_shading("render", maps, light, camera, scene, [], out.view(-1, 3, h, w))
+        ctx.scene = scene
+        ctx.save_for_backward(*maps, light, camera, out)
+        return out
+
+    @staticmethod
+    def backward(ctx, grad_out):
+        *maps, light, camera, out = ctx.saved_tensors
+        h, w = out.shape[-2:]
+        grads, g_light, g_camera = _shading_backward(
+            "render", maps, light, camera, ctx.scene, [], [], out.view(-1, 3, h, w), grad_out.reshape(-1, 3, h, w)
+        )
+        return (*grads, g_light, g_camera, None)
+
+
+class RenderLogL1Function(torch.autograd.Function):
+    """maps, light, camera, target [B,K,3,H,W], Scene, eps -> per-pixel sums [B,H,W] of
+    |log(render + eps) - log(target + eps)| over lights and channels (target: no grad)."""
+
+    @staticmethod
+    def forward(ctx, diffuse, normal, roughness, specular, light, camera, target, scene: Scene, eps: float):
+        maps = [t.contiguous() for t in (diffuse, normal, roughness, specular)]
+        light, camera = light.contiguous(), camera.contiguous()
+        b, _, h, w = diffuse.shape
+        target = target.detach().contiguous().view(-1, 3, h, w)
+        partial = torch.empty((b, h, w), dtype=diffuse.dtype, device=diffuse.device)
+        F = warp_scalar(diffuse.dtype)
+        _launch_shading("loss", maps, light, camera, scene, [target, F(eps)], partial)
+        ctx.scene, ctx.eps = scene, eps
+        ctx.save_for_backward(*maps, light, camera, target, partial)
+        return partial
+
+    @staticmethod
+    def backward(ctx, grad_partial):
+        *maps, light, camera, target, partial = ctx.saved_tensors
+        F = warp_scalar(partial.dtype)
+        # The target takes no gradient; Warp still wants a buffer for its adjoint.
+        grads, g_light, g_camera = _shading_backward(
+            "loss", maps, light, camera, ctx.scene, [target, F(ctx.eps)],
+            [torch.zeros_like(target), F(0.0)], partial, grad_partial,
+        )
+        return (*grads, g_light, g_camera, None, None, None)
+
+
+class RowLossFunction(torch.autograd.Function):
+    """x, y ``[R, C]`` -> per-row sums ``[R]`` of a pointwise loss ('log_l1' or 'mse');
+    gradients to x only (y is the target)."""
+
+    @staticmethod
+    def forward(ctx, x, y, kind: str, eps: float):
+        x, y = x.contiguous(), y.detach().contiguous()
+        partial = torch.empty(x.shape[0], dtype=x.dtype, device=x.device)
+        ctx.kind, ctx.eps = kind, eps
+        _launch_rows(x, y, kind, eps, partial)
+        ctx.save_for_backward(x, y, partial)
+        return partial
+
+    @staticmethod
+    def backward(ctx, grad_partial):
+        x, y, partial = ctx.saved_tensors
+        gx = torch.zeros_like(x)
+        _launch_rows(
+            x, y, ctx.kind, ctx.eps, partial,
+            adj=(gx, torch.zeros_like(y), grad_partial.contiguous().clone()),
+        )
+        return gx, None, None, None
+
+
+def _launch_rows(x, y, kind, eps, partial, adj=None):
+    F = warp_scalar(x.dtype)
+    kernels = build_image_kernels(F)
+    kernel = kernels.log_l1_rows if kind == "log_l1" else kernels.mse_rows
+    scalars = [F(eps)] if kind == "log_l1" else []
+    wx, wy, wp_partial = wp_array(x), wp_array(y), wp_array(partial)
+
+    def launch(_index: int, start: int, count: int) -> None:
+        kwargs = dict(
+            dim=count, inputs=[wx, wy, *scalars, start], outputs=[wp_partial],
+            device=warp_device(x.device), stream=_stream(x.device),
+        )
+        if adj is None:
+            wp.launch(kernel, **kwargs)
+        else:
+            adj_scalars = [F(0.0)] if scalars else []
+            wp.launch(
+                kernel, **kwargs, adjoint=True,
+                adj_inputs=[wp_array(adj[0]), wp_array(adj[1]), *adj_scalars, 0], adj_outputs=[wp_array(adj[2])],
+            )
+
+    parallel_chunks(chunk_bounds(x.shape[0], x.device), launch)

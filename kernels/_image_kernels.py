@@ -1,0 +1,120 @@
+"""Warp launch shells for feature translation and image losses.
+
+Losses are reduced in two stages: one thread per row accumulates its row in a local
+variable and writes one partial sum; torch then sums the partials in float64. A single
+float32 atomic accumulator over millions of elements loses about 1% (measured here).
+"""
+
+from functools import cache
+from types import SimpleNamespace
+
+import warp as wp
+
+from kernels.brdf import build_brdf
+
+__all__ = ["build_image_kernels"]
+
+
+@cache
+def build_image_kernels(F) -> SimpleNamespace:
+    """Translation and loss kernels for scalar type ``F`` (wp.float32 or wp.float64)."""
+    brdf = build_brdf(F)
+    V3 = brdf.V3
+    module = f"dgrsise_image_{wp.types.type_repr(F)}"
+
+    @wp.kernel(module=module)
+    def translate_kernel(
+        features: wp.array4d(dtype=F),
+        offsets: wp.array2d(dtype=F),
+        b_offset: int,
+        out: wp.array4d(dtype=F),
+    ):
+        # out(i, j) = features(i - dy, j - dx), bilinear; samples outside the map take
+        # the nearest edge value (clamped coordinates), as SPEC section 3 asks.
+        bb, i, j = wp.tid()
+        b = bb + b_offset
+        height = features.shape[2]
+        width = features.shape[3]
+        sx = wp.clamp(F(j) - offsets[b, 0], F(0.0), F(width - 1))
+        sy = wp.clamp(F(i) - offsets[b, 1], F(0.0), F(height - 1))
+        x0 = wp.min(int(wp.floor(sx)), width - 1)
+        y0 = wp.min(int(wp.floor(sy)), height - 1)
+        x1 = wp.min(x0 + 1, width - 1)
+        y1 = wp.min(y0 + 1, height - 1)
+        fx = sx - F(x0)
+        fy = sy - F(y0)
+        for c in range(features.shape[1]):
+            top = (F(1.0) - fx) * features[b, c, y0, x0] + fx * features[b, c, y0, x1]
+            bottom = (F(1.0) - fx) * features[b, c, y1, x0] + fx * features[b, c, y1, x1]
+            out[b, c, i, j] = (F(1.0) - fy) * top + fy * bottom
+
+    @wp.kernel(module=module)
+    def log_l1_rows_kernel(
+        x: wp.array2d(dtype=F), y: wp.array2d(dtype=F), eps: F, r_offset: int, partial: wp.array1d(dtype=F)
+    ):
+        r = wp.tid() + r_offset
+        s = F(0.0)
+        for c in range(x.shape[1]):
+            s += wp.abs(wp.log(x[r, c] + eps) - wp.log(y[r, c] + eps))
+        partial[r] = s
+
+    @wp.kernel(module=module)
+    def mse_rows_kernel(x: wp.array2d(dtype=F), y: wp.array2d(dtype=F), r_offset: int, partial: wp.array1d(dtype=F)):
+        r = wp.tid() + r_offset
+        s = F(0.0)
+        for c in range(x.shape[1]):
+            d = x[r, c] - y[r, c]
+            s += d * d
+        partial[r] = s
+
+    @wp.kernel(module=module)
+    def render_log_l1_kernel(
+        diffuse: wp.array4d(dtype=F),
+        normal: wp.array4d(dtype=F),
+        roughness: wp.array4d(dtype=F),
+        specular: wp.array4d(dtype=F),
+        light: wp.array3d(dtype=F),
+        camera: wp.array3d(dtype=F),
+        intensity: V3,
+        plane_size: F,
+        inverse_square: int,
+        rough_floor: F,
+        b_offset: int,
+        row_offset: int,
+        target: wp.array4d(dtype=F),
+        eps: F,
+        partial: wp.array3d(dtype=F),
+    ):
+        # Renders pixel (b, i, j) under the K lights and sums |log(x + eps) - log(y + eps)|
+        # over lights and channels without storing the rendering (fused: no [B,K,3,H,W]).
+        bb, ii, j = wp.tid()
+        b = bb + b_offset
+        i = ii + row_offset
+        height = diffuse.shape[2]
+        width = diffuse.shape[3]
+        num_lights = light.shape[1]
+        p = brdf.plane_point(i, j, height, width, plane_size)
+        rho_d = V3(diffuse[b, 0, i, j], diffuse[b, 1, i, j], diffuse[b, 2, i, j])
+        f0 = V3(specular[b, 0, i, j], specular[b, 1, i, j], specular[b, 2, i, j])
+        n = brdf.safe_normalize(V3(normal[b, 0, i, j], normal[b, 1, i, j], normal[b, 2, i, j]))
+        rough = roughness[b, 0, i, j]
+        s = F(0.0)
+        for k in range(num_lights):
+            radiance = brdf.point_light_radiance(
+                p,
+                V3(light[b, k, 0], light[b, k, 1], light[b, k, 2]),
+                V3(camera[b, k, 0], camera[b, k, 1], camera[b, k, 2]),
+                n, rho_d, f0, rough, intensity, inverse_square, rough_floor,
+            )
+            row = b * num_lights + k
+            for c in range(3):
+                s += wp.abs(wp.log(radiance[c] + eps) - wp.log(target[row, c, i, j] + eps))
+        partial[b, i, j] = s
+
+    return SimpleNamespace(
+        V3=V3,
+        translate=translate_kernel,
+        log_l1_rows=log_l1_rows_kernel,
+        mse_rows=mse_rows_kernel,
+        render_log_l1=render_log_l1_kernel,
+    )

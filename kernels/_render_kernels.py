@@ -1,0 +1,87 @@
+"""Warp launch shells for rendering: Cook-Torrance radiance and l/v/h geometry maps.
+
+One thread per pixel (b, i, j) loops over the K lights: the pixel's maps are read once
+and reused K times (measured 1.6x faster than one thread per pixel-light on the CPU).
+``b_offset`` / ``row_offset`` let the caller launch disjoint chunks from several
+threads. Pixel (i, j) sits at x = ((j + 0.5)/W - 0.5) * size, y = -((i + 0.5)/H - 0.5)
+* size, z = 0 (SPEC section 2; row 0 is +y).
+"""
+
+
+from functools import cache
+from types import SimpleNamespace
+
+import warp as wp
+
+from kernels.brdf import build_brdf
+
+__all__ = ["build_render_kernels"]
+
+
+@cache
+def build_render_kernels(F) -> SimpleNamespace:
+    """Render kernels for scalar type ``F`` (wp.float32 or wp.float64)."""
+    brdf = build_brdf(F)
+    V3 = brdf.V3
+    module = f"dgrsise_render_{wp.types.type_repr(F)}"
+
+    @wp.kernel(module=module)
+    def render_kernel(
+        diffuse: wp.array4d(dtype=F),
+        normal: wp.array4d(dtype=F),
+        roughness: wp.array4d(dtype=F),
+        specular: wp.array4d(dtype=F),
+        light: wp.array3d(dtype=F),
+        camera: wp.array3d(dtype=F),
+        intensity: V3,
+        plane_size: F,
+        inverse_square: int,
+        rough_floor: F,
+        b_offset: int,
+        row_offset: int,
+        out: wp.array4d(dtype=F),
+    ):
+        bb, ii, j = wp.tid()
+        b = bb + b_offset
+        i = ii + row_offset
+        height = diffuse.shape[2]
+        width = diffuse.shape[3]
+        num_lights = light.shape[1]
+        p = brdf.plane_point(i, j, height, width, plane_size)
+        rho_d = V3(diffuse[b, 0, i, j], diffuse[b, 1, i, j], diffuse[b, 2, i, j])
+        f0 = V3(specular[b, 0, i, j], specular[b, 1, i, j], specular[b, 2, i, j])
+        n = brdf.safe_normalize(V3(normal[b, 0, i, j], normal[b, 1, i, j], normal[b, 2, i, j]))
+        rough = roughness[b, 0, i, j]
+        for k in range(num_lights):
+            radiance = brdf.point_light_radiance(
+                p,
+                V3(light[b, k, 0], light[b, k, 1], light[b, k, 2]),
+                V3(camera[b, k, 0], camera[b, k, 1], camera[b, k, 2]),
+                n, rho_d, f0, rough, intensity, inverse_square, rough_floor,
+            )
+            row = b * num_lights + k
+            out[row, 0, i, j] = radiance[0]
+            out[row, 1, i, j] = radiance[1]
+            out[row, 2, i, j] = radiance[2]
+
+    @wp.kernel(module=module)
+    def lvh_kernel(
+        light: wp.array3d(dtype=F),
+        camera: wp.array3d(dtype=F),
+        plane_size: F,
+        height: int,
+        width: int,
+        out: wp.array4d(dtype=F),
+    ):
+        b, k, i, j = wp.tid()
+        p = brdf.plane_point(i, j, height, width, plane_size)
+        l = brdf.safe_normalize(V3(light[b, k, 0], light[b, k, 1], light[b, k, 2]) - p)
+        v = brdf.safe_normalize(V3(camera[b, k, 0], camera[b, k, 1], camera[b, k, 2]) - p)
+        h = brdf.safe_normalize(l + v)
+        row = b * light.shape[1] + k
+        for c in range(3):
+            out[row, c, i, j] = l[c]
+            out[row, 3 + c, i, j] = v[c]
+            out[row, 6 + c, i, j] = h[c]
+
+    return SimpleNamespace(V3=V3, render=render_kernel, lvh=lvh_kernel)

@@ -1,0 +1,117 @@
+"""Cook-Torrance / GGX BRDF as Warp functions, built per scalar type (float32, float64).
+
+Notation <-> paper (SPEC section 2; Karis 2013 "Real Shading in Unreal Engine 4" for
+the Fresnel and Smith approximations; Deschaintre et al. 2018 for the SVBRDF model):
+
+    n, l, v      unit normal, light and view directions (tangent space, z up)
+    h            half vector normalize(l + v)
+    rho_d        diffuse albedo ("diffuse" map), linear RGB
+    F0           specular albedo ("specular" map), linear RGB
+    r            roughness, clamped below at the preset's floor; alpha = r^2
+    D(h)         GGX NDF     alpha^2 / (pi ((n.h)^2 (alpha^2 - 1) + 1)^2)
+    F(v, h)      Schlick with the spherical-Gaussian exponent
+                 F0 + (1 - F0) 2^((-5.55473 (v.h) - 6.98316)(v.h))
+    G1(c)        Smith-Schlick c / (c (1 - k) + k), k = alpha / 2
+    f            rho_d (1 - F0) / pi + D F G1(n.l) G1(n.v) / (4 (n.l)(n.v))
+
+The specular term is evaluated as D F / (4 (n.l (1-k) + k)(n.v (1-k) + k)): the same
+value with the (n.l)(n.v) factors of G cancelled against the denominator, so it stays
+finite at grazing angles without an epsilon (k >= floor^2 / 2 > 0). All dot products
+are clamped at >= 0. ``kernels.reference`` evaluates exactly the same expressions.
+"""
+
+
+from functools import cache
+from types import SimpleNamespace
+
+import math
+
+import warp as wp
+
+__all__ = ["build_brdf", "FRESNEL_A", "FRESNEL_B", "NORMALIZE_EPS"]
+
+#: Spherical-Gaussian Fresnel exponent coefficients (Karis 2013, eq. 5 approximation).
+FRESNEL_A = -5.55473
+FRESNEL_B = -6.98316
+#: Added under the square root of every normalisation: keeps normalize() and its
+#: gradient finite for zero-length vectors (1e-12 is far below any real |x|^2 here).
+NORMALIZE_EPS = 1e-12
+PI = math.pi
+INV_PI = 1.0 / math.pi
+
+
+@cache
+def build_brdf(F) -> SimpleNamespace:
+    """Warp functions of the BRDF for scalar type ``F`` (wp.float32 or wp.float64)."""
+    V3 = wp.types.vector(3, F)
+
+    @wp.func
+    def safe_normalize(x: V3):
+        return x / wp.sqrt(wp.dot(x, x) + F(NORMALIZE_EPS))
+
+    @wp.func
+    def ggx_ndf(n_dot_h: F, alpha: F):
+        a2 = alpha * alpha
+        d = n_dot_h * n_dot_h * (a2 - F(1.0)) + F(1.0)
+        return a2 / (F(PI) * d * d)
+
+    @wp.func
+    def fresnel_schlick_sg(f0: V3, v_dot_h: F):
+        w = wp.pow(F(2.0), (F(FRESNEL_A) * v_dot_h + F(FRESNEL_B)) * v_dot_h)
+        return f0 + (V3(F(1.0), F(1.0), F(1.0)) - f0) * w
+
+    @wp.func
+    def smith_schlick_g1_over_c(c: F, k: F):
+        # G1(c) / c = 1 / (c (1 - k) + k): the c cancels with the 4 (n.l)(n.v) denominator.
+        return F(1.0) / (c * (F(1.0) - k) + k)
+
+    @wp.func
+    def cook_torrance(n: V3, l: V3, v: V3, rho_d: V3, f0: V3, rough: F, rough_floor: F):
+        """BRDF times cosine, f * (n.l), for unit n, l, v; returns linear RGB."""
+        h = safe_normalize(l + v)
+        n_dot_l = wp.max(wp.dot(n, l), F(0.0))
+        n_dot_v = wp.max(wp.dot(n, v), F(0.0))
+        n_dot_h = wp.max(wp.dot(n, h), F(0.0))
+        v_dot_h = wp.max(wp.dot(v, h), F(0.0))
+        r = wp.max(rough, rough_floor)
+        alpha = r * r
+        k = alpha * F(0.5)
+        d = ggx_ndf(n_dot_h, alpha)
+        fr = fresnel_schlick_sg(f0, v_dot_h)
+        vis = smith_schlick_g1_over_c(n_dot_l, k) * smith_schlick_g1_over_c(n_dot_v, k) * F(0.25)
+        one = V3(F(1.0), F(1.0), F(1.0))
+        diffuse = wp.cw_mul(rho_d, one - f0) * F(INV_PI)
+        return (diffuse + fr * (d * vis)) * n_dot_l
+
+    @wp.func
+    def plane_point(i: int, j: int, height: int, width: int, plane_size: F):
+        """Plane position of pixel (i, j)'s centre (SPEC section 2; row 0 is +y)."""
+        x = ((F(j) + F(0.5)) / F(width) - F(0.5)) * plane_size
+        y = -((F(i) + F(0.5)) / F(height) - F(0.5)) * plane_size
+        return V3(x, y, F(0.0))
+
+    @wp.func
+    def point_light_radiance(
+        p: V3, light_pos: V3, camera_pos: V3, n: V3, rho_d: V3, f0: V3, rough: F,
+        intensity: V3, inverse_square: int, rough_floor: F,
+    ):
+        """Linear radiance leaving plane point p towards the camera, lit by a point light."""
+        to_light = light_pos - p
+        dist2 = wp.dot(to_light, to_light) + F(NORMALIZE_EPS)
+        l = to_light / wp.sqrt(dist2)
+        v = safe_normalize(camera_pos - p)
+        radiance = wp.cw_mul(cook_torrance(n, l, v, rho_d, f0, rough, rough_floor), intensity)
+        if inverse_square != 0:
+            radiance = radiance / dist2
+        return radiance
+
+    return SimpleNamespace(
+        V3=V3,
+        plane_point=plane_point,
+        point_light_radiance=point_light_radiance,
+        safe_normalize=safe_normalize,
+        ggx_ndf=ggx_ndf,
+        fresnel_schlick_sg=fresnel_schlick_sg,
+        smith_schlick_g1_over_c=smith_schlick_g1_over_c,
+        cook_torrance=cook_torrance,
+    )
