@@ -9,10 +9,12 @@ slice of the outputs, so results are bit-identical to a single launch.
 from __future__ import annotations
 
 import os
+import sys
 import tempfile
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from functools import cache
-from typing import Callable
+from typing import Callable, Iterator
 
 import torch
 import warp as wp
@@ -44,12 +46,36 @@ def _writable_cache_dir() -> str:
     raise RuntimeError(f"no writable Warp kernel cache folder; set {CACHE_ENV}")
 
 
+@contextmanager
+def _native_stderr_silenced(active: bool) -> Iterator[None]:
+    """Send file descriptor 2 to /dev/null while active (native printf output only)."""
+    if not active:
+        yield
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+
+
 @cache
 def ensure_init() -> None:
-    """Initialise Warp once: errors only in the log (no banner), cache in a writable place."""
+    """Initialise Warp once: errors only in the log (no banner), cache in a writable place.
+
+    Without a CUDA device, Warp's native library prints a "could not load the CUDA
+    driver" line on stderr at init; on a CPU-only machine that line is noise in user
+    output, so init runs with native stderr silenced there (Python errors still raise).
+    """
     wp.config.log_level = wp.LOG_ERROR
     wp.config.kernel_cache_dir = _writable_cache_dir()
-    wp.init()
+    with _native_stderr_silenced(not torch.cuda.is_available()):
+        wp.init()
 
 
 def warp_device(device: torch.device) -> str:

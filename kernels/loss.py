@@ -47,8 +47,16 @@ def _pair(x: torch.Tensor, y: torch.Tensor) -> None:
     check_finite(x=x, y=y)
 
 
+#: Longest row one kernel thread reduces: bounds the rows of a flat or wide tensor so the
+#: work splits over threads and each row's partial sum stays short.
+MAX_ROW = 1024
+
+
 def _rows(x: torch.Tensor) -> torch.Tensor:
-    return x.reshape(-1, x.shape[-1]) if x.dim() >= 2 else x.reshape(1, -1)
+    """View ``x`` as ``[R, C]`` rows, C the largest divisor of numel that is <= MAX_ROW."""
+    n = x.numel()
+    width = next(d for d in range(min(n, MAX_ROW), 0, -1) if n % d == 0)
+    return x.reshape(-1, width)
 
 
 def _mean(partial: torch.Tensor, count: int) -> torch.Tensor:

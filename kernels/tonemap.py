@@ -23,9 +23,16 @@ _SRGB_LINEAR_CUTOFF = 0.0031308
 _SRGB_ENCODED_CUTOFF = 0.04045
 
 
+#: Lower clamp of the tone map: x^(1/2.2) has an infinite slope at 0, so a loss taken
+#: through the tone map would get inf/NaN gradients on black pixels. 1e-10 maps to
+#: 2.8e-5, far below one 8-bit step (1/255), so displayed values do not change.
+TONEMAP_FLOOR = 1e-10
+
+
 def tonemap(x: torch.Tensor) -> torch.Tensor:
-    """Linear radiance -> display value in [0, 1]: ``clamp(x, 0, 1) ** (1/2.2)``."""
-    return x.clamp(0.0, 1.0) ** (1.0 / GAMMA)
+    """Linear radiance -> display value in [0, 1]: ``clamp(x, 0, 1) ** (1/2.2)``
+    (clamped below at ``TONEMAP_FLOOR`` so the gradient stays finite)."""
+    return x.clamp(TONEMAP_FLOOR, 1.0) ** (1.0 / GAMMA)
 
 
 def inverse_tonemap(y: torch.Tensor) -> torch.Tensor:

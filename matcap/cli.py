@@ -1,0 +1,44 @@
+"""``relight``: the command line. Each subcommand lives in its own module."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from matcap import cmd_render
+from matcap.errors import UsageError
+
+__all__ = ["main", "build_parser"]
+
+_SUBCOMMANDS = [cmd_render]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="relight",
+        description="Material capture from one flash photo: relighting, SVBRDF maps, re-renders.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for module in _SUBCOMMANDS:
+        module.add_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    from materials.io.errors import FormatError
+    from materials.types import MapError
+
+    try:
+        return int(args.run(args) or 0)
+    except (UsageError, FormatError, MapError, FileExistsError, FileNotFoundError, ValueError, TypeError) as exc:
+        # A bad input is the user's to fix: one clear line, no traceback.
+        print(f"relight {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
