@@ -5,12 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 
-from matcap import cmd_render
+from matcap import cmd_convert, cmd_render, cmd_synth
 from matcap.errors import UsageError
 
 __all__ = ["main", "build_parser"]
 
-_SUBCOMMANDS = [cmd_render]
+_SUBCOMMANDS = [cmd_render, cmd_synth, cmd_convert]
 
 
 def build_parser() -> argparse.ArgumentParser:
