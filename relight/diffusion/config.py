@@ -1,0 +1,79 @@
+"""Typed configuration of the relighting diffusion model: presets and ablations."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+__all__ = ["RelightConfig", "ABLATIONS", "PRESETS"]
+
+#: Paper Table 3 switches -> ConditionEncoder settings.
+#: ``ori_ctrlnet``: ControlNet's own conditioning embedding on the photo (plain convs,
+#: no BCE, no shuffle, no prior); ``wo_sbce``: no shuffle and no BCE (one MD branch);
+#: ``wo_hamd``: plain convs instead of HA/MD; ``wo_prior``: no specular prior.
+ABLATIONS: dict[str, dict] = {
+    "full": dict(background="bce", conv="gated", prior=True, shuffle=True),
+    "ori_ctrlnet": dict(background="plain", conv="plain", prior=False, shuffle=False),
+    "wo_sbce": dict(background="md", conv="gated", prior=True, shuffle=False),
+    "wo_hamd": dict(background="bce", conv="plain", prior=True, shuffle=True),
+    "wo_prior": dict(background="bce", conv="gated", prior=False, shuffle=True),
+}
+
+PRESETS = ("tiny", "sd21")
+
+
+@dataclass(frozen=True)
+class RelightConfig:
+    """Architecture of the relighting model.
+
+    Attributes:
+        preset: "tiny" (pixel space, trained from scratch on the CPU) or "sd21" (Stable
+            Diffusion 2.1 from a local folder, latent space, frozen UNet/VAE/text encoder).
+        resolution: image side in pixels.
+        block_out_channels, layers_per_block, attention_head_dim, cross_attention_dim:
+            the tiny UNet (ignored by sd21, which reads its own).
+        num_light_tokens: light/view tokens per image (decoupled cross-attention).
+        condition_widths: branch widths of the condition encoder (ControlNet's are
+            16, 16, 32, 32, 96, 96; the tiny preset halves them and caps at 32, since in
+            pixel space the branches run at full resolution and would dominate a step).
+        ablation: one of ``ABLATIONS``.
+        plane_size: scene plane side (dgrsise preset: 4), for the prior's translation.
+        prompt: the fixed text prompt of the sd21 preset (SPEC section 4).
+        sd21_path: local diffusers folder of Stable Diffusion 2.1 (sd21 only).
+    """
+
+    preset: str = "tiny"
+    resolution: int = 64
+    block_out_channels: tuple[int, ...] = (32, 64, 128)
+    layers_per_block: int = 1
+    attention_head_dim: int = 8
+    cross_attention_dim: int = 64
+    num_light_tokens: int = 4
+    condition_widths: tuple[int, ...] = (8, 8, 16, 16, 32, 32)
+    ablation: str = "full"
+    plane_size: float = 4.0
+    prompt: str = "a photo taken of the surface of an object"
+    sd21_path: str | None = None
+    extra: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.preset not in PRESETS:
+            raise ValueError(f"unknown preset {self.preset!r}; known: {PRESETS}")
+        if self.ablation not in ABLATIONS:
+            raise ValueError(f"unknown ablation {self.ablation!r}; known: {sorted(ABLATIONS)}")
+        if self.preset == "sd21" and not self.sd21_path:
+            raise ValueError("the sd21 preset needs sd21_path, a local diffusers folder of Stable Diffusion 2.1")
+        if self.resolution % 8:
+            raise ValueError(f"resolution must be a multiple of 8, got {self.resolution}")
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["block_out_channels"] = list(self.block_out_channels)
+        d["condition_widths"] = list(self.condition_widths)
+        return d
+
+    @staticmethod
+    def from_dict(d: dict) -> "RelightConfig":
+        d = dict(d)
+        d["block_out_channels"] = tuple(d["block_out_channels"])
+        d["condition_widths"] = tuple(d["condition_widths"])
+        return RelightConfig(**d)

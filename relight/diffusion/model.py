@@ -1,0 +1,151 @@
+"""The relighting diffusion model: UNet + ControlNet (diffusers) conditioned by the
+condition encoder (BCE + translated specular prior) and light/view tokens.
+
+Data flow for N target images (SPEC section 4):
+
+    photo, background photos, light/camera --> ConditionEncoder --> [N, C, h, w]
+        (replaces ControlNet's conditioning embedding: added to its conv_in output)
+    l/v/h maps of the targets --> LightTokenEncoder --> [N, L, D] light tokens
+    [null text | light tokens] --> decoupled cross-attention in UNet and ControlNet
+    x_t, t --> ControlNet residuals --> UNet --> v-prediction
+
+The tiny preset works in pixel space on tone-mapped images scaled to [-1, 1].
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import torch
+from diffusers import ControlNetModel, DDPMScheduler, UNet2DConditionModel
+from safetensors.torch import load_file, save_file
+from torch import nn
+
+import kernels
+from relight.diffusion.config import ABLATIONS, RelightConfig
+from relight.modules import ConditionEncoder, LightTokenEncoder, install_decoupled_attention
+
+__all__ = ["RelightDiffusion", "CONFIG_NAME", "WEIGHTS_NAME", "make_train_scheduler"]
+
+CONFIG_NAME = "relight_config.json"
+WEIGHTS_NAME = "relight.safetensors"
+
+
+def make_train_scheduler() -> DDPMScheduler:
+    """DDPM training noise schedule, v-prediction (SPEC section 4; SD 2.1's settings)."""
+    return DDPMScheduler(
+        num_train_timesteps=1000, beta_schedule="scaled_linear", beta_start=0.00085, beta_end=0.012,
+        prediction_type="v_prediction", clip_sample=False,
+    )
+
+
+def _tiny_unet(cfg: RelightConfig) -> UNet2DConditionModel:
+    n = len(cfg.block_out_channels)
+    # Self/cross-attention only below full resolution (<= 32x32 at 64 px): full-res
+    # attention costs most of a CPU step for little gain.
+    down = ("DownBlock2D",) + ("CrossAttnDownBlock2D",) * (n - 1)
+    up = ("CrossAttnUpBlock2D",) * (n - 1) + ("UpBlock2D",)
+    return UNet2DConditionModel(
+        sample_size=cfg.resolution, in_channels=3, out_channels=3,
+        down_block_types=down, up_block_types=up,
+        block_out_channels=cfg.block_out_channels, layers_per_block=cfg.layers_per_block,
+        attention_head_dim=cfg.attention_head_dim, cross_attention_dim=cfg.cross_attention_dim,
+        norm_num_groups=8,
+    )
+
+
+class RelightDiffusion(nn.Module):
+    """All trainable and frozen parts of the relighting model, saved as one checkpoint."""
+
+    def __init__(self, config: RelightConfig):
+        super().__init__()
+        if config.preset != "tiny":
+            raise NotImplementedError("the sd21 preset is not built yet; use preset='tiny'")
+        self.config = config
+        self.unet = _tiny_unet(config)
+        self.controlnet = ControlNetModel.from_unet(self.unet, load_weights_from_unet=True)
+        # Our condition encoder takes the conditioning embedding's place: its output is
+        # added to ControlNet's conv_in output, as the embedding's would be.
+        self.controlnet.controlnet_cond_embedding = nn.Identity()
+        install_decoupled_attention(self.unet, config.num_light_tokens)
+        install_decoupled_attention(self.controlnet, config.num_light_tokens)
+        self.condition = ConditionEncoder(
+            out_channels=config.block_out_channels[0], downsample=False,
+            widths=config.condition_widths, **ABLATIONS[config.ablation],
+        )
+        self.light_tokens = LightTokenEncoder(token_dim=config.cross_attention_dim, num_tokens=config.num_light_tokens)
+        # No text encoder in the tiny preset: one learned token fills the text slot.
+        self.null_text = nn.Parameter(torch.zeros(1, 1, config.cross_attention_dim))
+
+    # ------------------------------------------------------------------ conditioning
+    def feature_size(self) -> tuple[int, int]:
+        return (self.config.resolution, self.config.resolution)
+
+    def encode_condition(
+        self,
+        photo: torch.Tensor,
+        background: torch.Tensor,
+        light: torch.Tensor,
+        camera: torch.Tensor,
+        permutation: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Conditioning for N targets.
+
+        Args:
+            photo: ``[N, 3, H, W]`` linear flash photo (per target).
+            background: ``[N, 3, H, W]`` linear photos for the BCE (the photo at inference).
+            light, camera: ``[N, 3]`` target light and camera positions.
+            permutation: training-time shuffle of BCE features (``shuffle_within_groups``).
+        Returns:
+            (features ``[N, C, h, w]``, encoder states ``[N, 1 + L, D]``).
+        """
+        offsets = kernels.highlight_offsets(camera, light, self.config.plane_size, self.feature_size())
+        feats = self.condition(background, photo, offsets, permutation)
+        lvh = kernels.lvh_maps(light[:, None], camera[:, None], photo.shape[-2:], plane_size=self.config.plane_size)
+        tokens = self.light_tokens(lvh[:, 0])
+        states = torch.cat([self.null_text.expand(tokens.shape[0], -1, -1), tokens], dim=1)
+        return feats, states
+
+    def denoise(self, x_t: torch.Tensor, t: torch.Tensor, feats: torch.Tensor, states: torch.Tensor) -> torch.Tensor:
+        """v-prediction ``[N, 3, H, W]`` for noisy targets ``x_t`` at timesteps ``t``."""
+        down, mid = self.controlnet(x_t, t, encoder_hidden_states=states, controlnet_cond=feats, return_dict=False)
+        return self.unet(
+            x_t, t, encoder_hidden_states=states,
+            down_block_additional_residuals=down, mid_block_additional_residual=mid,
+        ).sample
+
+    # ------------------------------------------------------------------ image space
+    @staticmethod
+    def to_model_space(linear: torch.Tensor) -> torch.Tensor:
+        """Linear radiance -> tone-mapped -> [-1, 1] (the tiny preset's pixel space)."""
+        return kernels.tonemap(linear) * 2 - 1
+
+    @staticmethod
+    def to_linear(x: torch.Tensor) -> torch.Tensor:
+        """Model space [-1, 1] -> linear radiance (clamped to the tone map's range)."""
+        return kernels.inverse_tonemap((x.clamp(-1, 1) + 1) / 2)
+
+    # ------------------------------------------------------------------ persistence
+    def save_pretrained(self, folder: str | os.PathLike) -> None:
+        """Write ``relight_config.json`` and ``relight.safetensors`` (all weights, the
+        decoupled-attention processors included) into ``folder`` (created)."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        state = {k: v.detach().contiguous() for k, v in self.state_dict().items()}
+        save_file(state, str(folder / WEIGHTS_NAME))
+        (folder / CONFIG_NAME).write_text(json.dumps(self.config.to_dict(), indent=2))
+
+    @classmethod
+    def from_pretrained(cls, folder: str | os.PathLike) -> "RelightDiffusion":
+        """Rebuild from a folder written by ``save_pretrained``: the architecture comes
+        from the config, then every weight is loaded strictly (a missing or unexpected
+        key is an error, never a silent warning)."""
+        folder = Path(folder)
+        if not (folder / CONFIG_NAME).is_file() or not (folder / WEIGHTS_NAME).is_file():
+            raise FileNotFoundError(f"{folder}: not a relighting checkpoint (needs {CONFIG_NAME} and {WEIGHTS_NAME})")
+        config = RelightConfig.from_dict(json.loads((folder / CONFIG_NAME).read_text()))
+        model = cls(config)
+        model.load_state_dict(load_file(str(folder / WEIGHTS_NAME)), strict=True)
+        return model

@@ -1,0 +1,94 @@
+"""``RelightPipeline``: one flash photo + target lights -> relit images (diffusers style).
+
+Inference glue only: the model holds the weights, the scheduler holds the step rule.
+"""
+
+from __future__ import annotations
+
+import torch
+from diffusers import DDIMScheduler
+from tqdm.auto import tqdm
+
+from relight.diffusion.model import RelightDiffusion
+
+__all__ = ["RelightPipeline", "DEFAULT_STEPS", "make_sample_scheduler"]
+
+#: Sampling steps (SPEC section 4: about 20 steps, guidance 1).
+DEFAULT_STEPS = 20
+
+
+def make_sample_scheduler() -> DDIMScheduler:
+    """DDIM with the training schedule's betas, v-prediction, deterministic (eta 0)."""
+    return DDIMScheduler(
+        num_train_timesteps=1000, beta_schedule="scaled_linear", beta_start=0.00085, beta_end=0.012,
+        prediction_type="v_prediction", clip_sample=False, set_alpha_to_one=False, timestep_spacing="trailing",
+    )
+
+
+class RelightPipeline:
+    """Relight one flash photo under K target lights with the diffusion model."""
+
+    def __init__(self, model: RelightDiffusion, scheduler: DDIMScheduler | None = None):
+        self.model = model
+        self.scheduler = scheduler or make_sample_scheduler()
+
+    @torch.no_grad()
+    def __call__(
+        self,
+        photo: torch.Tensor,
+        lights: torch.Tensor,
+        camera: torch.Tensor,
+        *,
+        num_inference_steps: int = DEFAULT_STEPS,
+        num_samples: int = 1,
+        generator: torch.Generator | None = None,
+        progress: bool = True,
+    ) -> torch.Tensor:
+        """
+        Args:
+            photo: ``[3, H, W]`` linear radiance, lit by a flash at the camera; H = W =
+                the model's resolution.
+            lights: ``[K, 3]`` target light positions (z > 0), scene units.
+            camera: ``[3]`` camera position.
+            num_samples: samples per target; the result is their mean (averaging
+                reduces the sampler's variance).
+        Returns:
+            ``[K, 3, H, W]`` linear radiance (the mean over samples). All targets and
+            samples are denoised in one batch.
+        """
+        model = self.model
+        res = model.config.resolution
+        # 1. Check the inputs.
+        if photo.dim() != 3 or photo.shape[0] != 3:
+            raise ValueError(f"photo must have shape [3, H, W], got {tuple(photo.shape)}")
+        if tuple(photo.shape[1:]) != (res, res):
+            raise ValueError(f"photo must be {res}x{res} for this model, got {tuple(photo.shape[1:])}")
+        if lights.dim() != 2 or lights.shape[1] != 3 or lights.shape[0] == 0:
+            raise ValueError(f"lights must have shape [K, 3], got {tuple(lights.shape)}")
+        if camera.shape != (3,):
+            raise ValueError(f"camera must have shape [3], got {tuple(camera.shape)}")
+        if (lights[:, 2] <= 0).any() or camera[2] <= 0:
+            raise ValueError("lights and camera must lie above the material plane (z > 0)")
+        if not torch.isfinite(photo).all():
+            raise ValueError("photo holds NaN or inf values")
+        if num_samples < 1 or num_inference_steps < 1:
+            raise ValueError("num_samples and num_inference_steps must be at least 1")
+        model.eval()
+        device = next(model.parameters()).device
+        k = lights.shape[0]
+        n = k * num_samples
+        # 2. Encode the condition once per target (the background is the photo itself).
+        photos = photo.to(device)[None].expand(n, -1, -1, -1)
+        target_lights = lights.to(device).repeat(num_samples, 1)
+        cameras = camera.to(device)[None].expand(n, 3)
+        feats, states = model.encode_condition(photos, photos, target_lights, cameras)
+        # 3. Start from noise.
+        x = torch.randn((n, 3, res, res), generator=generator, device="cpu").to(device)
+        # 4. Denoise.
+        self.scheduler.set_timesteps(num_inference_steps, device=device)
+        for t in tqdm(self.scheduler.timesteps, desc="relight", disable=not progress, leave=False):
+            v = model.denoise(x, t.expand(n), feats, states)
+            x = self.scheduler.step(v, t, x).prev_sample
+        # 5. Back to linear radiance; average the samples of each target.
+        linear = model.to_linear(x).view(num_samples, k, 3, res, res)
+        return linear.mean(0)

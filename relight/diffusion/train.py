@@ -1,0 +1,138 @@
+"""Train the relighting diffusion model: ``python -m relight.diffusion.train``.
+
+Thin entry point: a typed config and ``main(cfg)``; model logic lives in
+``relight.diffusion.model`` and the step in ``relight.diffusion.objective``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from accelerate import Accelerator
+from torch.utils.data import DataLoader
+from tqdm.auto import tqdm
+
+from materials.dataset import TRAIN_SEEDS, GroupConfig, RenderedGroups
+from relight.diffusion.config import RelightConfig
+from relight.diffusion.model import RelightDiffusion, make_train_scheduler
+from relight.diffusion.objective import diffusion_loss
+
+__all__ = ["TrainConfig", "main"]
+
+
+@dataclass
+class TrainConfig:
+    """Training run settings (one group = one material under 8 lights)."""
+
+    ckpt_dir: str = "/tmp/dgrsise-relight-ckpt"
+    steps: int = 1000
+    minutes: float = 0.0  # wall-clock budget; 0 = none
+    groups_per_step: int = 1
+    resolution: int = 64
+    lr: float = 2e-4
+    seed: int = 0
+    ablation: str = "full"
+    ckpt_every: int = 50
+    threads: int = 0  # torch threads; 0 = leave torch's default
+
+
+def _save(ckpt: Path, model, optimizer, step: int, history: list, accel: Accelerator) -> None:
+    """Atomic checkpoint: write a temporary sibling folder, then swap it in."""
+    tmp = ckpt.with_name(ckpt.name + ".tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    accel.unwrap_model(model).save_pretrained(tmp / "model")
+    torch.save({"optimizer": optimizer.state_dict(), "step": step, "rng": torch.get_rng_state()}, tmp / "state.pt")
+    (tmp / "history.json").write_text(json.dumps(history))
+    old = ckpt.with_name(ckpt.name + ".old")
+    if ckpt.exists():
+        os.replace(ckpt, old)
+    os.replace(tmp, ckpt)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def _plot(history: list, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    steps = [h[0] for h in history]
+    losses = [h[1] for h in history]
+    fig, ax = plt.subplots(figsize=(5, 3))
+    ax.plot(steps, losses, lw=0.6)
+    ax.set_xlabel("step")
+    ax.set_ylabel("v-prediction MSE")
+    ax.set_yscale("log")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def main(cfg: TrainConfig) -> Path:
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    accel = Accelerator(cpu=not torch.cuda.is_available())
+    torch.manual_seed(cfg.seed)
+    ckpt = Path(cfg.ckpt_dir) / "latest"
+    ckpt.parent.mkdir(parents=True, exist_ok=True)
+    if (ckpt / "model").is_dir():
+        model = RelightDiffusion.from_pretrained(ckpt / "model")
+    else:
+        model = RelightDiffusion(RelightConfig(resolution=cfg.resolution, ablation=cfg.ablation))
+    optimizer = torch.optim.AdamW([p for p in model.parameters() if p.requires_grad], lr=cfg.lr)
+    step, history = 0, []
+    if (ckpt / "state.pt").is_file():
+        state = torch.load(ckpt / "state.pt", weights_only=False)
+        optimizer.load_state_dict(state["optimizer"])
+        step = state["step"]
+        torch.set_rng_state(state["rng"])
+        history = json.loads((ckpt / "history.json").read_text())
+    data = RenderedGroups(TRAIN_SEEDS, GroupConfig(size=cfg.resolution, views=8, seed=cfg.seed))
+    # Items past the resumed step come next: the loader starts at the step's offset.
+    loader = DataLoader(
+        torch.utils.data.Subset(data, range(step * cfg.groups_per_step, len(data))),
+        batch_size=cfg.groups_per_step, shuffle=False, num_workers=0,
+    )
+    model, optimizer, loader = accel.prepare(model, optimizer, loader)
+    scheduler = make_train_scheduler()
+    start = time.time()
+    bar = tqdm(total=cfg.steps, initial=step, desc="train relight", disable=not accel.is_local_main_process)
+    model.train()
+    for batch in loader:
+        if step >= cfg.steps or (cfg.minutes and time.time() - start > cfg.minutes * 60):
+            break
+        loss = diffusion_loss(accel.unwrap_model(model), scheduler, batch)
+        optimizer.zero_grad(set_to_none=True)
+        accel.backward(loss)
+        optimizer.step()
+        step += 1
+        history.append((step, float(loss.detach())))
+        bar.update(1)
+        bar.set_postfix(loss=f"{history[-1][1]:.4f}")
+        if step % cfg.ckpt_every == 0 and accel.is_main_process:
+            _save(ckpt, model, optimizer, step, history, accel)
+            _plot(history, Path(cfg.ckpt_dir) / "loss.png")
+    if accel.is_main_process:
+        _save(ckpt, model, optimizer, step, history, accel)
+        _plot(history, Path(cfg.ckpt_dir) / "loss.png")
+    bar.close()
+    return ckpt
+
+
+def _parse() -> TrainConfig:
+    parser = argparse.ArgumentParser(description=__doc__)
+    for f in dataclasses.fields(TrainConfig):
+        parser.add_argument(f"--{f.name.replace('_', '-')}", type=type(f.default), default=f.default)
+    return TrainConfig(**vars(parser.parse_args()))
+
+
+if __name__ == "__main__":
+    main(_parse())

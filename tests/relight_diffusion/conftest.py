@@ -1,0 +1,31 @@
+import pytest
+import torch
+
+from relight.diffusion import RelightConfig, RelightDiffusion
+
+#: A real but tiny architecture: every code path of the tiny preset, at 16x16.
+TINY = dict(
+    resolution=16, block_out_channels=(8, 16), cross_attention_dim=16, attention_head_dim=4,
+    num_light_tokens=2, condition_widths=(4, 4, 4, 4, 8, 8),
+)
+
+
+@pytest.fixture
+def tiny_model():
+    torch.manual_seed(0)
+    return RelightDiffusion(RelightConfig(**TINY))
+
+
+@pytest.fixture
+def group_batch():
+    return make_group_batch
+
+
+def make_group_batch(b=1, v=4, size=16, seed=0):
+    gen = torch.Generator().manual_seed(seed)
+    images = torch.rand(b, v, 3, size, size, generator=gen)
+    light = torch.rand(b, v, 3, generator=gen) * 4 - 2
+    light[..., 2] = 4 + torch.rand(b, v, generator=gen)
+    camera = torch.tensor([0.0, 0.0, 4.0]).expand(b, v, 3).clone()
+    light[:, 0] = camera[:, 0]
+    return {"images": images, "light": light, "camera": camera}

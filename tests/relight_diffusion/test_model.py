@@ -1,0 +1,94 @@
+"""The relighting diffusion model: injection at init, persistence, overfitting, pipeline."""
+
+import pytest
+import torch
+from accelerate.utils import set_seed
+
+from relight.diffusion import RelightDiffusion, RelightPipeline, make_train_scheduler
+from relight.diffusion.objective import diffusion_loss
+from relight.modules.ip_attention import decoupled_processors
+
+
+def _inputs(model, n=3, seed=0):
+    gen = torch.Generator().manual_seed(seed)
+    res = model.config.resolution
+    photo = torch.rand(n, 3, res, res, generator=gen)
+    light = torch.tensor([[1.0, -1.0, 5.0]]).repeat(n, 1)
+    camera = torch.tensor([[0.0, 0.0, 4.0]]).repeat(n, 1)
+    x = torch.randn(n, 3, res, res, generator=gen)
+    t = torch.tensor([10, 500, 900][:n])
+    return photo, light, camera, x, t
+
+
+def test_zero_initialised_injection_leaves_unet_unchanged(tiny_model):
+    photo, light, camera, x, t = _inputs(tiny_model)
+    with torch.no_grad():
+        feats, states = tiny_model.encode_condition(photo, photo, light, camera)
+        with_control = tiny_model.denoise(x, t, feats, states)
+        plain = tiny_model.unet(x, t, encoder_hidden_states=states).sample
+    assert torch.equal(with_control, plain)
+
+
+def test_light_tokens_enter_once_value_projection_moves(tiny_model):
+    photo, light, camera, x, t = _inputs(tiny_model)
+    other = light.clone()
+    other[:, 0] = -3.0
+    with torch.no_grad():
+        f1, s1 = tiny_model.encode_condition(photo, photo, light, camera)
+        _, s2 = tiny_model.encode_condition(photo, photo, other, camera)
+        assert torch.equal(tiny_model.unet(x, t, encoder_hidden_states=s1).sample,
+                           tiny_model.unet(x, t, encoder_hidden_states=s2).sample)
+        for p in decoupled_processors(tiny_model.unet):
+            torch.nn.init.normal_(p.to_v_ip.weight, std=0.5)
+        assert not torch.allclose(tiny_model.unet(x, t, encoder_hidden_states=s1).sample,
+                                  tiny_model.unet(x, t, encoder_hidden_states=s2).sample)
+
+
+def test_save_load_round_trip(tiny_model, tmp_path):
+    with torch.no_grad():
+        for p in tiny_model.parameters():  # move every weight, the zero-initialised ones too
+            p.add_(0.01 * torch.randn_like(p))
+    tiny_model.save_pretrained(tmp_path / "ckpt")
+    loaded = RelightDiffusion.from_pretrained(tmp_path / "ckpt")
+    assert len(decoupled_processors(loaded.unet)) == len(decoupled_processors(tiny_model.unet)) > 0
+    photo, light, camera, x, t = _inputs(tiny_model)
+    with torch.no_grad():
+        a = tiny_model.denoise(x, t, *tiny_model.encode_condition(photo, photo, light, camera))
+        b = loaded.denoise(x, t, *loaded.encode_condition(photo, photo, light, camera))
+    assert torch.equal(a, b)
+    with pytest.raises(FileNotFoundError, match="not a relighting checkpoint"):
+        RelightDiffusion.from_pretrained(tmp_path)
+
+
+def test_few_steps_overfit_a_fixed_batch(tiny_model, group_batch):
+    set_seed(0)
+    batch = group_batch(b=1, v=4)
+    scheduler = make_train_scheduler()
+    opt = torch.optim.AdamW(tiny_model.parameters(), lr=3e-3)
+    tiny_model.train()
+    losses = []
+    for _ in range(40):
+        # the same noise and timesteps every step: a fixed objective to overfit
+        loss = diffusion_loss(tiny_model, scheduler, batch, torch.Generator().manual_seed(0))
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(float(loss.detach()))
+    assert losses[-1] < 0.5 * losses[0], losses
+
+
+def test_pipeline_deterministic_and_checked(tiny_model):
+    pipe = RelightPipeline(tiny_model)
+    photo = torch.rand(3, 16, 16)
+    lights = torch.tensor([[1.0, 1.0, 4.0], [-2.0, 0.5, 6.0]])
+    camera = torch.tensor([0.0, 0.0, 4.0])
+    run = lambda: pipe(photo, lights, camera, num_inference_steps=3, generator=torch.Generator().manual_seed(3),  # noqa: E731
+                       progress=False, num_samples=2)
+    a, b = run(), run()
+    assert a.shape == (2, 3, 16, 16) and torch.equal(a, b) and (a >= 0).all()
+    with pytest.raises(ValueError, match="16x16"):
+        pipe(torch.rand(3, 8, 8), lights, camera, progress=False)
+    with pytest.raises(ValueError, match=r"\[3, H, W\]"):
+        pipe(torch.rand(4, 16, 16), lights, camera, progress=False)
+    with pytest.raises(ValueError, match="above the material plane"):
+        pipe(photo, torch.tensor([[0.0, 0.0, -1.0]]), camera, progress=False)
