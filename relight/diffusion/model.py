@@ -116,6 +116,22 @@ class RelightDiffusion(nn.Module):
             down_block_additional_residuals=down, mid_block_additional_residual=mid,
         ).sample
 
+    def forward(
+        self,
+        x_t: torch.Tensor,
+        t: torch.Tensor,
+        photo: torch.Tensor,
+        background: torch.Tensor,
+        light: torch.Tensor,
+        camera: torch.Tensor,
+        permutation: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """Training forward: condition + denoise in one call, so a DistributedDataParallel
+        wrapper sees (and synchronises) every gradient. Shapes as in ``encode_condition``
+        and ``denoise``; returns the v-prediction ``[N, 3, H, W]``."""
+        feats, states = self.encode_condition(photo, background, light, camera, permutation)
+        return self.denoise(x_t, t, feats, states)
+
     # ------------------------------------------------------------------ image space
     @staticmethod
     def to_model_space(linear: torch.Tensor) -> torch.Tensor:

@@ -13,24 +13,25 @@ __all__ = ["diffusion_loss"]
 
 
 def diffusion_loss(
-    model: RelightDiffusion, scheduler: DDPMScheduler, batch: dict, generator: torch.Generator | None = None
+    model: torch.nn.Module, scheduler: DDPMScheduler, batch: dict, generator: torch.Generator | None = None
 ) -> torch.Tensor:
     """v-prediction MSE for a batch of groups (SPEC section 4).
 
     ``batch``: ``images [B, V, 3, H, W]`` linear (view 0: the flash photo), ``light`` /
     ``camera`` ``[B, V, 3]``. Every view of a group is a target; all are conditioned on
     the group's flash photo (specular prior) and on background features of the group's
-    renders, shuffled within the group (training-time feature shuffle).
+    renders, shuffled within the group (training-time feature shuffle). ``model`` is a
+    ``RelightDiffusion``, possibly wrapped for distributed training (called, never unwrapped).
     """
     images, light, camera = batch["images"], batch["light"], batch["camera"]
     b, v = images.shape[:2]
     targets = images.flatten(0, 1)
     photo = images[:, :1].expand(-1, v, -1, -1, -1).flatten(0, 1)
     perm = shuffle_within_groups(b * v, v, generator).to(images.device)
-    feats, states = model.encode_condition(photo, targets, light.flatten(0, 1), camera.flatten(0, 1), perm)
-    x0 = model.to_model_space(targets)
+    x0 = RelightDiffusion.to_model_space(targets)
     noise = torch.randn(x0.shape, generator=generator).to(x0.device)
     t = torch.randint(0, scheduler.config.num_train_timesteps, (x0.shape[0],), generator=generator).to(x0.device)
     x_t = scheduler.add_noise(x0, noise, t)
     target = scheduler.get_velocity(x0, noise, t)
-    return F.mse_loss(model.denoise(x_t, t, feats, states), target)
+    pred = model(x_t, t, photo, targets, light.flatten(0, 1), camera.flatten(0, 1), perm)
+    return F.mse_loss(pred, target)

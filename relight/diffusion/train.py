@@ -37,6 +37,7 @@ class TrainConfig:
     minutes: float = 0.0  # wall-clock budget; 0 = none
     groups_per_step: int = 1
     resolution: int = 64
+    block_out_channels: str = "32,64,128"
     lr: float = 2e-4
     seed: int = 0
     ablation: str = "full"
@@ -86,7 +87,10 @@ def main(cfg: TrainConfig) -> Path:
     if (ckpt / "model").is_dir():
         model = RelightDiffusion.from_pretrained(ckpt / "model")
     else:
-        model = RelightDiffusion(RelightConfig(resolution=cfg.resolution, ablation=cfg.ablation))
+        channels = tuple(int(c) for c in cfg.block_out_channels.split(","))
+        model = RelightDiffusion(
+            RelightConfig(resolution=cfg.resolution, ablation=cfg.ablation, block_out_channels=channels)
+        )
     optimizer = torch.optim.AdamW([p for p in model.parameters() if p.requires_grad], lr=cfg.lr)
     step, history = 0, []
     if (ckpt / "state.pt").is_file():
@@ -109,7 +113,7 @@ def main(cfg: TrainConfig) -> Path:
     for batch in loader:
         if step >= cfg.steps or (cfg.minutes and time.time() - start > cfg.minutes * 60):
             break
-        loss = diffusion_loss(accel.unwrap_model(model), scheduler, batch)
+        loss = diffusion_loss(model, scheduler, batch)
         optimizer.zero_grad(set_to_none=True)
         accel.backward(loss)
         optimizer.step()
@@ -127,12 +131,13 @@ def main(cfg: TrainConfig) -> Path:
     return ckpt
 
 
-def _parse() -> TrainConfig:
-    parser = argparse.ArgumentParser(description=__doc__)
+def parse_args(argv: list[str] | None = None) -> TrainConfig:
+    """Build a ``TrainConfig`` from ``--field value`` flags (``_`` -> ``-``)."""
+    parser = argparse.ArgumentParser(prog="relight train relight", description=__doc__)
     for f in dataclasses.fields(TrainConfig):
         parser.add_argument(f"--{f.name.replace('_', '-')}", type=type(f.default), default=f.default)
-    return TrainConfig(**vars(parser.parse_args()))
+    return TrainConfig(**vars(parser.parse_args(argv)))
 
 
 if __name__ == "__main__":
-    main(_parse())
+    main(parse_args())
