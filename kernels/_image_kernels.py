@@ -95,16 +95,14 @@ def build_image_kernels(F) -> SimpleNamespace:
         width = diffuse.shape[3]
         num_lights = light.shape[1]
         p = brdf.plane_point(i, j, height, width, plane_size)
-        rho_d = V3(diffuse[b, 0, i, j], diffuse[b, 1, i, j], diffuse[b, 2, i, j])
-        f0 = V3(specular[b, 0, i, j], specular[b, 1, i, j], specular[b, 2, i, j])
-        n = brdf.safe_normalize(V3(normal[b, 0, i, j], normal[b, 1, i, j], normal[b, 2, i, j]))
+        rho_d = brdf.load_rgb(diffuse, b, i, j)
+        f0 = brdf.load_rgb(specular, b, i, j)
+        n = brdf.safe_normalize(brdf.load_rgb(normal, b, i, j))
         rough = roughness[b, 0, i, j]
         s = F(0.0)
         for k in range(num_lights):
             radiance = brdf.point_light_radiance(
-                p,
-                V3(light[b, k, 0], light[b, k, 1], light[b, k, 2]),
-                V3(camera[b, k, 0], camera[b, k, 1], camera[b, k, 2]),
+                p, brdf.load_position(light, b, k), brdf.load_position(camera, b, k),
                 n, rho_d, f0, rough, intensity, inverse_square, rough_floor,
             )
             row = b * num_lights + k

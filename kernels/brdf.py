@@ -84,6 +84,16 @@ def build_brdf(F) -> SimpleNamespace:
         return (diffuse + fr * (d * vis)) * n_dot_l
 
     @wp.func
+    def load_rgb(a: wp.array4d(dtype=F), b: int, i: int, j: int):
+        """Channels 0-2 of pixel (i, j) of batch item b of a ``[B, C, H, W]`` array."""
+        return V3(a[b, 0, i, j], a[b, 1, i, j], a[b, 2, i, j])
+
+    @wp.func
+    def load_position(a: wp.array3d(dtype=F), b: int, k: int):
+        """Position k of batch item b of a ``[B, K, 3]`` array."""
+        return V3(a[b, k, 0], a[b, k, 1], a[b, k, 2])
+
+    @wp.func
     def plane_point(i: int, j: int, height: int, width: int, plane_size: F):
         """Plane position of pixel (i, j)'s centre (SPEC section 2; row 0 is +y)."""
         x = ((F(j) + F(0.5)) / F(width) - F(0.5)) * plane_size
@@ -108,6 +118,8 @@ def build_brdf(F) -> SimpleNamespace:
     return SimpleNamespace(
         V3=V3,
         plane_point=plane_point,
+        load_rgb=load_rgb,
+        load_position=load_position,
         point_light_radiance=point_light_radiance,
         safe_normalize=safe_normalize,
         ggx_ndf=ggx_ndf,
