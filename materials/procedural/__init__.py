@@ -13,6 +13,11 @@ demo and bundled models train on these materials. ``generate(seed)`` returns one
 About ``GLOSSY_PROBABILITY`` (40%) of seeds get a strongly specular finish (roughness
 < 0.3 and F0 > 0.2 or metal), the case the method exists for.
 
+Cost: about 20 ms of CPU time per 256 x 256 material in one thread (measured on the
+project's 2-core CPU while it was shared with other jobs; ``benchmarks/bench_synth.py``).
+The work is many small tensor ops, which gain little from intra-op threads: on a busy
+machine ``torch.set_num_threads(1)`` is much faster than two threads waiting on each other.
+
 Example::
 
     >>> from materials.procedural import generate, family_of

@@ -185,7 +185,8 @@ def tiles(gen: torch.Generator, size: int, glossy: bool, device="cpu") -> Layers
     thickness = uniform(gen, 0.002, 0.005)
     tilt = uniform(gen, 0.0, 0.02)  # face slope variation between tiles (laying error)
     colors = jitter_colors(gen, ((0.0, 1.0), (0.03, 0.75), (0.3, 0.95)), nx * ny, (0.01, 0.04, 0.06))
-    if coin(gen, 0.3):  # checker of a second colour
+    # Checker of a second colour; only with even counts, or it would break at the wrap.
+    if coin(gen, 0.5) and nx % 2 == 0 and ny % 2 == 0:
         second = jitter_colors(gen, ((0.0, 1.0), (0.0, 0.8), (0.1, 0.95)), nx * ny, (0.01, 0.04, 0.06))
         parity = (torch.arange(ny)[:, None] + torch.arange(nx)[None, :]).remainder(2).reshape(-1, 1)
         colors = torch.where(parity.bool(), second, colors)
@@ -306,14 +307,14 @@ def wood(gen: torch.Generator, size: int, glossy: bool, device="cpu") -> Layers:
     rel = wrap(xw - jp, 1.0)
     segment = wrap(_above(xw, jp).sum(-1), joints)  # wraps: last segment = first
     seg_idx = (plank * joints + segment).int()
+    if planks == 1:  # one board spans the tile: no joints, no seams
+        seg_idx = torch.zeros_like(seg_idx)
     dist_joint = torch.minimum(rel, 1.0 - rel).min(-1).values
     phase = rings * y + slant * x + bend * bend_field[0] + 0.15 * fine_bend[0] + _lookup(plank_shift, seg_idx)[0]
     t = wrap(phase, 1.0)
     latewood = (t**sharp)[None]
     gap = torch.minimum(_edge_distance(pv - torch.floor(pv)) / planks, dist_joint)
-    gaps = 1 - _edge(gap_half, gap, size)
-    if planks == 1:
-        gaps = torch.zeros_like(gaps)  # one board spans the tile: no seams
+    gaps = 1 - _edge(gap_half, gap, size) if planks > 1 else torch.zeros(1, size, size, device=device)
     pore = (pores - 1.0).clamp(min=0.0)
 
     tint = _lookup(plank_tint, seg_idx) * (1 + 0.1 * figure)
@@ -365,7 +366,8 @@ def stone(gen: torch.Generator, size: int, glossy: bool, device="cpu") -> Layers
         halo = (1 - torch.sin(math.pi * phase).abs()) ** (sharp / 6)  # soft stain around veins
         v = (vein * (0.4 + 0.6 * fade) + 0.3 * halo * fade + 0.6 * vein2 * (1 - fade)).clamp(max=1.0)[None]
         cloud_t = smoothstep(-1.5, 1.5, clouds)[None]
-        diffuse = _lerp(_lerp(_fill(c1[0], size, device), _fill(c1[1], size, device), cloud_t), _fill(vein_color, size, device), v)
+        ground = _lerp(_fill(c1[0], size, device), _fill(c1[1], size, device), cloud_t)
+        diffuse = _lerp(ground, _fill(vein_color, size, device), v)
         # Polished marble is optically flat; honed marble keeps a faint grain.
         height = (0.0 if glossy else 3e-5) * fine + (0.0 if glossy else 1e-4) * v
         roughness = base_r * (1 + 0.1 * fine[0:1]) + 0.1 * v
@@ -401,7 +403,8 @@ def stone(gen: torch.Generator, size: int, glossy: bool, device="cpu") -> Layers
         dx, dy = fbm(gen, size, 4, octaves=4, channels=2, device=device) * (0.4 / cells)
         c = worley(gen, x + dx, y + dy, cells, jitter=0.9)
         crack_w = uniform(gen, 0.02, 0.06)
-        crack = (1 - smoothstep(0.0, crack_w, c.f2 - c.f1))[None] * (coin(gen, 0.6) * 1.0)
+        cracked = 1.0 if coin(gen, 0.6) else 0.0
+        crack = (1 - smoothstep(0.0, crack_w, c.f2 - c.f1))[None] * cracked
         tone = spectral_noise(gen, size, f_lo=1, f_hi=16, exponent=1.0, device=device)
         diffuse = _fill(color, size, device) * (1 + 0.25 * tone + 0.1 * fine + 0.1 * relief) * (1 - 0.5 * crack)
         height = amp * (0.3 * relief + 0.05 * fine) - amp * 0.5 * crack
@@ -415,13 +418,15 @@ def stone(gen: torch.Generator, size: int, glossy: bool, device="cpu") -> Layers
         lift = torch.rand(cells * cells, 1, generator=gen)
         joint = uniform(gen, 0.06, 0.15)
         relief = spectral_noise(gen, size, f_lo=2, f_hi=96, exponent=1.2, device=device)
-        face = smoothstep(joint, joint + max(0.1, 1.5 * cells / size), c.f2 - c.f1)[None]
+        gap = c.f2 - c.f1  # cell widths
+        face = smoothstep(joint, joint + max(0.1, 1.5 * cells / size), gap)[None]  # rounded edge
+        solid = _edge(joint / cells, gap / cells, size)  # stone vs mortar
         stone_col = _lookup(colors, c.index) * (1 + 0.15 * relief + 0.1 * fine)
         mortar_col = _fill(mortar_color, size, device) * (1 + 0.15 * fine)
-        diffuse = _lerp(mortar_col, stone_col, face)
+        diffuse = _lerp(mortar_col, stone_col, solid)
         height = face * (4e-3 + 1.5e-3 * _lookup(lift, c.index) + 8e-4 * relief) + 2e-4 * fine
-        roughness = _lerp(torch.full_like(face, 0.95), base_r * (1 + 0.1 * fine), face)
-        f0_map = _lerp(torch.full_like(face, 0.03), torch.full_like(face, f0), face)
+        roughness = _lerp(torch.full_like(solid, 0.95), base_r * (1 + 0.1 * fine), solid)
+        f0_map = _lerp(torch.full_like(solid, 0.03), torch.full_like(solid, f0), solid)
         return _done(height, diffuse, roughness, _grey(f0_map, size, device))
     return _done(height, diffuse, roughness, _grey(f0, size, device))
 
@@ -460,15 +465,18 @@ def fabric(gen: torch.Generator, size: int, glossy: bool, device="cpu") -> Layer
     if coin(gen, 0.35):  # stripes / plaid: threads grouped in coloured bands
         bands = randint(gen, 2, 4)
         band_cols = torch.stack([random_color(gen, (0, 1), (0.2, 0.9), (0.05, 0.8)) for _ in range(bands)])
-        period = randint(gen, 2, max(2, count // 4))
-        band_of = (torch.arange(count) // period) % bands
+        # The colour repeat divides the thread count, so the plaid wraps seamlessly.
+        repeats = [d for d in range(2 * bands, count + 1) if count % d == 0]
+        repeat = choice(gen, repeats)
+        band_of = (torch.arange(count) % repeat) * bands // repeat
         warp_cols = band_cols[band_of]
         if coin(gen, 0.6):
             weft_cols = band_cols[band_of]
     base_r, f0 = _finish(gen, glossy, (0.65, 0.95))
     wobble_x, wobble_y = fbm(gen, size, 4, octaves=3, channels=2, device=device) * (0.15 / count)
-    fib_warp = spectral_noise(gen, size, f_lo=16, f_hi=128, exponent=0.3, anisotropy=8.0, angle=math.pi / 2, device=device)
-    fib_weft = spectral_noise(gen, size, f_lo=16, f_hi=128, exponent=0.3, anisotropy=8.0, angle=0.0, device=device)
+    fibres = dict(f_lo=16, f_hi=128, exponent=0.3, anisotropy=8.0, device=device)
+    fib_warp = spectral_noise(gen, size, angle=math.pi / 2, **fibres)  # along the warp (y)
+    fib_weft = spectral_noise(gen, size, angle=0.0, **fibres)
     mottle = lattice_noise(gen, size, 4, device=device)
 
     x, y = _coords(gen, size, device)
@@ -537,13 +545,14 @@ def metal(gen: torch.Generator, size: int, glossy: bool, device="cpu") -> Layers
         roughness = base_r * (1 + 0.1 * smudge)
     else:  # polished: smudges and faint hairline scratches only
         hair = spectral_noise(
-            gen, size, f_lo=16, f_hi=128, exponent=0.0, anisotropy=100.0, angle=uniform(gen, 0.0, math.pi), device=device
+            gen, size, f_lo=16, f_hi=128, exponent=0.0, anisotropy=100.0,
+            angle=uniform(gen, 0.0, math.pi), device=device,
         )
         lines = (hair - 2.6).clamp(min=0.0)
         height = -1e-4 * lines
         roughness = base_r * (1 + 0.1 * smudge) + 0.15 * lines
     diffuse = torch.full((3, size, size), dust, device=device)
-    specular = _fill(f0, size, device) * (1 - 0.03 * smudge.clamp(min=0.0))
+    specular = (_fill(f0, size, device) * (1 - 0.03 * smudge.clamp(min=0.0))).clamp(0.5, 1.0)
     return _done(height, diffuse, roughness, specular, metal=True)
 
 
@@ -571,7 +580,8 @@ def leather(gen: torch.Generator, size: int, glossy: bool, device="cpu") -> Laye
     x, y = _coords(gen, size, device)
     c = worley(gen, x + dx, y + dy, cells, jitter=0.9)
     wrinkles = spectral_noise(
-        gen, size, f_lo=2, f_hi=16, exponent=1.0, anisotropy=uniform(gen, 1.5, 4.0), angle=uniform(gen, 0, math.pi), device=device
+        gen, size, f_lo=2, f_hi=16, exponent=1.0,
+        anisotropy=uniform(gen, 1.5, 4.0), angle=uniform(gen, 0, math.pi), device=device,
     )
     pores_n = spectral_noise(gen, size, f_lo=64, f_hi=128, exponent=0.0, device=device)
     mottle = spectral_noise(gen, size, f_lo=1, f_hi=12, exponent=1.0, device=device)
@@ -681,7 +691,7 @@ def terrazzo(gen: torch.Generator, size: int, glossy: bool, device="cpu") -> Lay
         c = worley(gen, x + dx, y + dy, cells, jitter=0.9)
         # Shrunken Voronoi cells give the angular shard outline of crushed stone.
         per_cell = _lookup(table, c.index)
-        chip = _edge(gap, (c.f2 - c.f1) / cells, size) * per_cell[3:]  # distances in tile units
+        chip = _edge(gap / cells, (c.f2 - c.f1) / cells, size) * per_cell[3:]  # in tile units
         chip_col = per_cell[:3]
         diffuse = _lerp(diffuse, chip_col * (1 + 0.05 * speckle), chip)
         chip_h = torch.maximum(chip_h, chip)

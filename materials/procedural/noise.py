@@ -54,9 +54,9 @@ T = TypeVar("T")
 #: at. Larger maps show the same material without extra sub-2-px spectral detail.
 SPECTRAL_BAND = 128
 
-#: Standard deviation of cubic-B-spline-smoothed unit-variance white noise, per axis:
-#: the B-spline's autocorrelation at 0, i.e. the central value of the degree-7
-#: B-spline, 2416 / 5040 = 151 / 315.
+#: Standard deviation, per axis, of unit-variance white noise smoothed by the cubic
+#: B-spline: its variance is the spline's autocorrelation at 0, the central value of
+#: the degree-7 B-spline, 2416 / 5040 = 151 / 315 (averaged over sub-cell positions).
 _BSPLINE_STD_1D = math.sqrt(151.0 / 315.0)
 
 
@@ -99,27 +99,55 @@ def smoothstep(edge0: float | torch.Tensor, edge1: float | torch.Tensor, x: torc
 
 
 # ---------------------------------------------------------------- lattice noise
-def _bspline_matrix(size: int, cells: int, phase: float, device: torch.device | str) -> torch.Tensor:
-    """``[size, cells]`` periodic cubic-B-spline weights from lattice nodes to pixels.
+def _bspline_matrix(size: int, cells: list[int], phases: torch.Tensor, gains: list[float], device) -> torch.Tensor:
+    """Periodic cubic-B-spline weights from the nodes of several lattices to pixels:
+    ``[size, sum(cells)]``, lattice o's block scaled by ``gains[o]``.
 
-    Lattice node k sits at tile coordinate (k + phase) / cells; indices wrap modulo
-    ``cells``, so the smoothed field is periodic. scatter_add handles cells < 4, where
-    several of the four taps land on the same node.
+    Node k of lattice o sits at tile coordinate (k + phases[o]) / cells[o]; indices wrap
+    modulo cells[o], so every smoothed field is periodic. All lattices are built in one
+    vectorised pass (fBm needs several); scatter_add handles cells < 4, where several of
+    the four taps land on the same node.
     """
-    p = (torch.arange(size, device=device, dtype=torch.float32) + 0.5) / size * cells - phase
+    c = torch.tensor(cells, dtype=torch.float32, device=device)[:, None]  # [L, 1]
+    p = (torch.arange(size, device=device, dtype=torch.float32) + 0.5) / size * c - phases.to(device)[:, None]
     i0 = torch.floor(p)
-    t = (p - i0)[:, None]
-    w = torch.cat(
-        [
-            (1 - t) ** 3 / 6,
-            (3 * t**3 - 6 * t**2 + 4) / 6,
-            (-3 * t**3 + 3 * t**2 + 3 * t + 1) / 6,
-            t**3 / 6,
-        ],
-        dim=1,
-    )
-    idx = torch.remainder(i0.long()[:, None] + torch.arange(-1, 3, device=device), cells)
-    return torch.zeros(size, cells, device=device).scatter_add_(1, idx, w)
+    t = (p - i0)[..., None]  # [L, N, 1]
+    t2, t3 = t * t, t * t * t
+    w = torch.cat([(1 - t) ** 3, 3 * t3 - 6 * t2 + 4, -3 * t3 + 3 * t2 + 3 * t + 1, t3], dim=-1)
+    w = w * (torch.tensor(gains, device=device)[:, None, None] / 6.0)
+    taps = i0[..., None] + torch.arange(-1, 3, device=device, dtype=torch.float32)  # [L, N, 4]
+    first = torch.tensor([0] + list(cells[:-1]), device=device).cumsum(0).float()[:, None, None]
+    idx = (taps - c[..., None] * torch.floor(taps / c[..., None]) + first).long()
+    out = torch.zeros(size, sum(cells), device=device)
+    return out.scatter_add_(1, idx.permute(1, 0, 2).reshape(size, -1), w.permute(1, 0, 2).reshape(size, -1))
+
+
+def _lattice_sum(
+    gen: torch.Generator,
+    size: int,
+    cells: list[tuple[int, int]],
+    gains: list[float],
+    channels: int,
+    device,
+) -> torch.Tensor:
+    """sum_o gains[o] * (B-spline-smoothed Gaussian lattice o, ``cells[o]`` = (rows,
+    cols)): ``[channels, N, N]``. One matrix product for all lattices:
+    ``Wy @ blockdiag(values_o) @ Wx^T``."""
+    cy = [c[0] for c in cells]
+    cx = [c[1] for c in cells]
+    values = [torch.randn(channels, a, b, generator=gen) for a, b in cells]
+    # Random lattice phase: B-spline noise varies faster midway between nodes than at
+    # them; a fixed lattice would always put the tile border at the same place relative
+    # to the nodes, so the border's statistics would differ from the interior's.
+    phases = torch.rand(2, len(cells), generator=gen)
+    blocks = torch.zeros(channels, sum(cy), sum(cx))
+    r0 = c0 = 0
+    for v, (a, b) in zip(values, cells):
+        blocks[:, r0 : r0 + a, c0 : c0 + b] = v
+        r0, c0 = r0 + a, c0 + b
+    wy = _bspline_matrix(size, cy, phases[0], gains, device)
+    wx = _bspline_matrix(size, cx, phases[1], [1.0] * len(cells), device)
+    return wy @ blocks.to(device) @ wx.T
 
 
 def lattice_noise(
@@ -136,14 +164,7 @@ def lattice_noise(
             stretch the features (e.g. ``(16, 2)``: long along x).
     """
     cy, cx = (cells, cells) if isinstance(cells, int) else cells
-    values = torch.randn(channels, cy, cx, generator=gen).to(device)
-    # Random lattice phase: B-spline noise varies faster midway between nodes than at
-    # them; a fixed lattice would always put the tile border at the same place relative
-    # to the nodes, so the border's statistics would differ from the interior's.
-    phase_y, phase_x = torch.rand(2, generator=gen).tolist()
-    wy = _bspline_matrix(size, cy, phase_y, device)
-    wx = _bspline_matrix(size, cx, phase_x, device)
-    return (wy @ values @ wx.T) / (_BSPLINE_STD_1D**2)
+    return _lattice_sum(gen, size, [(cy, cx)], [1.0 / _BSPLINE_STD_1D**2], channels, device)
 
 
 def fbm(
@@ -157,13 +178,10 @@ def fbm(
 ) -> torch.Tensor:
     """Fractal sum of ``octaves`` lattice noises, cells doubling each octave and amplitude
     multiplied by ``gain``: ``[channels, N, N]``, zero mean, unit variance."""
-    total = torch.zeros(channels, size, size, device=device)
-    amp, norm = 1.0, 0.0
-    for o in range(octaves):
-        total = total + amp * lattice_noise(gen, size, cells * 2**o, channels, device)
-        norm += amp * amp
-        amp *= gain
-    return total / math.sqrt(norm)
+    amps = [gain**o for o in range(octaves)]
+    norm = math.sqrt(sum(a * a for a in amps)) * _BSPLINE_STD_1D**2
+    grids = [(cells * 2**o, cells * 2**o) for o in range(octaves)]
+    return _lattice_sum(gen, size, grids, [a / norm for a in amps], channels, device)
 
 
 # ---------------------------------------------------------------- spectral noise
@@ -198,37 +216,31 @@ def spectral_noise(
     band = min(SPECTRAL_BAND, math.ceil(3.0 * f_hi))
     # Stored layout: rows 0..B-1 hold frequencies 0..B-1, rows B..2B-1 hold -B..-1;
     # columns 0..B-1 hold frequencies 0..B-1 (the half-plane an rfft keeps).
-    re = torch.randn(channels, 2 * band, band, generator=gen)
-    im = torch.randn(channels, 2 * band, band, generator=gen)
+    coef = torch.randn(channels, 2 * band, band, dtype=torch.complex64, generator=gen).to(device)
 
     pos = min(band, (size - 1) // 2 + 1)  # non-negative row frequencies kept
     neg = min(band - 1, size // 2)  # negative row frequencies kept
     cols = min(band, size // 2 + 1)
-    rows = torch.cat([torch.arange(pos), torch.arange(2 * band - neg, 2 * band)])
-    coef = torch.complex(re[:, rows, :cols], im[:, rows, :cols]).to(device)
-
-    fy = torch.cat([torch.arange(pos), torch.arange(-neg, 0)]).float().to(device)
-    fx = torch.arange(cols, dtype=torch.float32, device=device)
-    ky, kx = fy[:, None], fx[None, :]
+    fy = torch.cat([torch.arange(pos), torch.arange(-neg, 0)]).float().to(device)[:, None]
+    fx = torch.arange(cols, dtype=torch.float32, device=device)[None, :]
     ca, sa = math.cos(angle), math.sin(angle)
-    along = kx * ca + ky * sa
-    across = -kx * sa + ky * ca
-    r = torch.sqrt((along * anisotropy) ** 2 + across**2)
+    along = (fx * ca + fy * sa) * anisotropy
+    across = fy * ca - fx * sa
+    r = torch.sqrt(along * along + across * across)
     amp = r.clamp(min=1e-6) ** (-exponent) * (1.0 - _gaussian_window(r, f_lo)) * _gaussian_window(r, f_hi)
-    amp[0, 0] = 0.0
+    amp[0, 0] = 0.0  # no DC: the field has zero mean by construction
     # The inverse DFT samples pixel corners (i / N); a half-pixel phase shift evaluates
     # the field at pixel centres like every other primitive here. Separable, so only
     # two 1-D complex exponentials (a full-size complex exp is slow on CPU).
-    shift = torch.polar(torch.ones_like(fy), math.pi * fy / size)[:, None] * torch.polar(
-        torch.ones_like(fx), math.pi * fx / size
-    )[None, :]
+    shift_y = torch.polar(torch.ones_like(fy), math.pi * fy / size)
+    shift_x = torch.polar(torch.ones_like(fx), math.pi * fx / size)
+    shift = shift_y * shift_x
+    filt = amp * shift
     spec = torch.zeros(channels, size, size // 2 + 1, dtype=torch.complex64, device=device)
-    filtered = coef * (amp * shift)
-    spec[:, :pos, :cols] = filtered[:, :pos]
+    spec[:, :pos, :cols] = coef[:, :pos, :cols] * filt[:pos]
     if neg:
-        spec[:, size - neg :, :cols] = filtered[:, pos:]
+        spec[:, size - neg :, :cols] = coef[:, 2 * band - neg :, :cols] * filt[pos:]
     field = torch.fft.irfft2(spec, s=(size, size), norm="forward")
-    field = field - field.mean(dim=(-2, -1), keepdim=True)
     return field / field.std(dim=(-2, -1), keepdim=True).clamp(min=1e-8)
 
 
@@ -278,10 +290,9 @@ def worley(
     wrapped = torch.remainder(a, cells)
     ids = (wrapped[:, None] * cells + wrapped[None, :]).reshape(-1)
     grid = a.float() + 0.5
-    points = torch.stack(
-        [grid[None, :].expand(pad, pad).reshape(-1) + offsets[ids, 0], grid[:, None].expand(pad, pad).reshape(-1) + offsets[ids, 1]],
-        dim=1,
-    )
+    px_grid = grid[None, :].expand(pad, pad).reshape(-1)
+    py_grid = grid[:, None].expand(pad, pad).reshape(-1)
+    points = torch.stack([px_grid + offsets[ids, 0], py_grid + offsets[ids, 1]], dim=1)
     # (x, y) float32 pairs viewed as one int64: one index_select fetches both.
     packed = points.contiguous().view(torch.int64).reshape(-1).to(x.device)
 

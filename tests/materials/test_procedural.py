@@ -35,10 +35,10 @@ UNIT_TOL = 1e-3
 #: pattern has edges (grout, threads): a tileable map's r reaches 5-10 when the border
 #: happens to cross a grout line, so the test bounds the median of r over the seeds of a
 #: family (columns and rows pooled), which sits near 1 for a tileable map. Measured with
-#: this file's seeds and size (48 px, 24 seeds per family): the seam gives at most 1.04
+#: this file's seeds and size (48 px, 24 seeds per family): the seam gives at most 1.03
 #: over all families and maps; the same statistic at every *interior* column / row
-#: position (pseudo-seams, continuous by construction) spreads up to 1.14; non-tileable
-#: crops give 1.49 (wood and stone diffuse) and 13.9 (smooth fBm). 1.25 sits above the
+#: position (pseudo-seams, continuous by construction) spreads up to 1.15; non-tileable
+#: crops give 1.69 (wood and stone diffuse) and 13.9 (smooth fBm). 1.25 sits above the
 #: interior's own spread and below what a cut produces.
 SEAM_FACTOR = 1.25
 #: Absolute slack of the seam test, for maps that are constant (metal diffuse).
@@ -174,10 +174,9 @@ def test_value_ranges_per_family(family):
             r_lo, r_hi = ROUGHNESS_RANGE
             assert r_lo - 1e-6 <= float(m.roughness.min()) and float(m.roughness.max()) <= r_hi + 1e-6
             assert 0.0 <= float(m.specular.min()) and float(m.specular.max()) <= 1.0
-            spec = m.specular.mean(dim=(1, 2))  # mean F0 per channel
             if family == "metal":
                 assert float(m.diffuse.max()) <= METAL_DIFFUSE_MAX + 1e-6
-                assert float(spec.min()) >= 0.45 and float(spec.max()) <= 1.0  # coloured 0.5-1 F0
+                assert float(m.specular.min()) >= 0.5 - 1e-6  # metal F0 in [0.5, 1]
             else:
                 d_lo, d_hi = DIFFUSE_RANGE
                 assert d_lo - 1e-6 <= float(m.diffuse.min()) and float(m.diffuse.max()) <= d_hi + 1e-6
@@ -189,6 +188,12 @@ def test_value_ranges_per_family(family):
                     assert DIELECTRIC_F0[0] - 1e-6 <= median_f0 <= DIELECTRIC_F0[1] + 1e-6
                 if family != "paint":  # dielectric F0 is grey
                     assert float((m.specular - m.specular.mean(0, keepdim=True)).abs().max()) < 1e-6
+
+
+def test_metals_have_coloured_specular():
+    f0 = torch.stack([generate(s, 16, "metal").specular.mean((1, 2)) for s in range(12)])
+    spread = f0.max(1).values - f0.min(1).values  # chroma of F0: gold, copper, brass
+    assert float(spread.max()) > 0.2 and float(spread.min()) >= 0.0
 
 
 @pytest.mark.parametrize("size", [MIN_SIZE, 37, 100])
@@ -369,6 +374,21 @@ def test_diversity_of_colours_and_families():
         )
     per_family = torch.stack([torch.stack(v).mean(0) for v in stats.values()])
     assert float(torch.cdist(per_family, per_family).fill_diagonal_(1.0).min()) > 1e-3
+
+
+def test_families_have_visible_structure():
+    """Patterns actually appear (e.g. terrazzo has chips, fabric has threads): the
+    relative spatial contrast of diffuse luminance. Metals (diffuse ~0) and plain paint
+    (a uniform coat is a valid sample) are exempt. Measured: 0.14 (leather) to 0.7
+    (terrazzo) per family; terrazzo without its chips gives ~0.08."""
+    for family in FAMILIES:
+        if family in ("metal", "paint"):
+            continue
+        contrast = []
+        for seed in range(6):
+            lum = generate(seed, 96, family).diffuse.mean(0)
+            contrast.append(float(lum.std() / lum.mean()))
+        assert sum(contrast) / len(contrast) > 0.12, (family, contrast)
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
