@@ -1,0 +1,315 @@
+"""Multi-image SVBRDF estimator (SPEC section 5; after Luo et al. 2024, paper section 6.2).
+
+Data flow for a batch of B materials seen in V views (any V >= 1), shapes symbolic:
+
+1. Inputs: ``images [B, V, 3, H, W]`` linear radiance; ``light``, ``camera [B, V, 3]``.
+   Each view is encoded as ``(log(x + 0.01) + INPUT_SHIFT) * INPUT_SCALE`` (the log of the
+   rendering loss, Deschaintre et al. 2018: flash highlights span four decades, the log
+   keeps dark texture and the highlight on one scale) concatenated with its 9-channel
+   l/v/h map (``kernels.lvh_maps``), so the encoder knows where each view was lit from.
+2. Shared per-view encoder: levels of strided 3x3 convs (GroupNorm, SiLU) on the
+   ``B * V`` views (default 16-32-64-128-192 channels over 5 levels, ``EstimatorConfig``).
+3. Cross-view correlation at every level, a DeepSets block: each view's features get a
+   residual ``conv1x1([f_v, mean_v f, max_v f])``, so every view sees what the others
+   see before the next level; then the views are pooled (``conv1x1([mean_v f, max_v f])``)
+   into one skip feature per level. Mean and max are symmetric, so the output does not
+   depend on the view order and any V works (V = 1: mean = max = the view). The reference
+   uses a learned graph over per-view channels; see ``DESIGN.md`` for why not here.
+4. Bottleneck ("latent") ``[B, C_L, H / 2^(L-1), W / 2^(L-1)]`` plus a global-context
+   term (spatial mean -> linear, broadcast). Test-time refinement adds ``latent_offset``
+   here (``estimator.refine``).
+5. Shared U-Net decoder back to full resolution, then one small adapter head per map:
+   diffuse (3, sigmoid), normal (3: x, y = tanh, z = sigmoid in [NORMAL_MIN_Z, 1], then
+   normalised, so z > 0), roughness (1, sigmoid), specular (3, sigmoid).
+
+Output: a batched ``materials.types.Material`` (maps ``[B, C, H, W]``, linear, float32).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Iterator, Sequence
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+from diffusers.configuration_utils import ConfigMixin, register_to_config
+from diffusers.models.modeling_utils import ModelMixin
+
+import kernels
+from estimator.config import EstimatorConfig
+from materials.types import Material
+
+__all__ = ["SVBRDFEstimator", "check_views", "INPUT_SHIFT", "INPUT_SCALE", "NORMAL_MIN_Z"]
+
+#: Input encoding ``(log(x + LOG_EPS) + INPUT_SHIFT) * INPUT_SCALE``: log(0.01) = -4.6 for
+#: black, about -1 for mid-grey diffuse, up to ~8 in mirror highlights; the shift and scale
+#: put the common range near [-2, 2] before the first conv (GroupNorm follows it).
+INPUT_SHIFT = 1.0
+INPUT_SCALE = 0.5
+#: Smallest normal z before normalisation: with |x|, |y| <= 1 this allows tilts up to
+#: atan(sqrt(2) / 0.05) ~ 88 degrees while keeping z strictly positive (SPEC: normals face out).
+NORMAL_MIN_Z = 0.05
+#: Initial bias of the normal head's z logit: sigmoid(2) ~ 0.88 with x, y ~ 0, i.e. the
+#: untrained model starts from flat normals rather than random tilts.
+NORMAL_Z_BIAS = 2.0
+
+
+def _groups(channels: int, wanted: int) -> int:
+    return math.gcd(channels, wanted)
+
+
+class ConvBlock(nn.Module):
+    """3x3 conv (optionally stride 2) -> GroupNorm -> SiLU."""
+
+    def __init__(self, cin: int, cout: int, groups: int, stride: int = 1):
+        super().__init__()
+        self.conv = nn.Conv2d(cin, cout, 3, stride=stride, padding=1)
+        self.norm = nn.GroupNorm(_groups(cout, groups), cout)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return F.silu(self.norm(self.conv(x)))
+
+
+class CrossViewMix(nn.Module):
+    """DeepSets correlation across views: ``f_v + conv1x1(SiLU(GN([f_v, mean f, max f])))``.
+
+    Permutation-equivariant over views; ``x`` is ``[B * V, C, h, w]``.
+    """
+
+    def __init__(self, channels: int, groups: int):
+        super().__init__()
+        self.norm = nn.GroupNorm(_groups(3 * channels, groups), 3 * channels)
+        self.proj = nn.Conv2d(3 * channels, channels, 1)
+
+    def forward(self, x: torch.Tensor, views: int) -> torch.Tensor:
+        xv = x.unflatten(0, (-1, views))
+        mean = xv.mean(1, keepdim=True).expand_as(xv)
+        top = xv.amax(1, keepdim=True).expand_as(xv)
+        joint = torch.cat([xv, mean, top], dim=2).flatten(0, 1)
+        return x + self.proj(F.silu(self.norm(joint)))
+
+
+class ViewPool(nn.Module):
+    """Symmetric pooling over views: ``conv1x1([mean_v f, max_v f])`` -> ``[B, C, h, w]``."""
+
+    def __init__(self, channels: int):
+        super().__init__()
+        self.proj = nn.Conv2d(2 * channels, channels, 1)
+
+    def forward(self, x: torch.Tensor, views: int) -> torch.Tensor:
+        xv = x.unflatten(0, (-1, views))
+        return self.proj(torch.cat([xv.mean(1), xv.amax(1)], dim=1))
+
+
+class GlobalContext(nn.Module):
+    """Adds a broadcast ``linear(spatial mean)``: lets every pixel see image-wide cues
+    (e.g. an overall specular level), like the global track of Deschaintre et al. 2018."""
+
+    def __init__(self, channels: int):
+        super().__init__()
+        self.linear = nn.Linear(channels, channels)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x + self.linear(F.silu(x.mean((2, 3))))[..., None, None]
+
+
+class AdapterHead(nn.Module):
+    """Per-map head: 3x3 conv -> GroupNorm -> SiLU -> 1x1 conv to the map's raw channels."""
+
+    def __init__(self, cin: int, width: int, cout: int, groups: int):
+        super().__init__()
+        self.block = ConvBlock(cin, width, groups)
+        self.out = nn.Conv2d(width, cout, 1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.out(self.block(x))
+
+
+def check_views(images, light, camera, *, multiple: int = 1) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Validate a multi-view batch; return (images, light, camera) with positions ``[B, V, 3]``.
+
+    Args:
+        images: ``[B, V, 3, H, W]`` linear radiance, float32 or float64, finite.
+        light, camera: ``[B, V, 3]`` or ``[V, 3]`` (shared by the batch), finite.
+        multiple: H and W must be multiples of it.
+    Raises:
+        TypeError: a non-tensor or non-float argument.
+        ValueError: naming the argument, for a wrong shape, mismatching V, NaN or inf.
+    """
+    for name, t in (("images", images), ("light", light), ("camera", camera)):
+        if not isinstance(t, torch.Tensor):
+            raise TypeError(f"{name} must be a torch.Tensor, got {type(t).__name__}")
+        if not t.is_floating_point():
+            raise TypeError(f"{name} must be a floating-point tensor, got {t.dtype}")
+    if images.dim() != 5 or images.shape[2] != 3:
+        raise ValueError(f"images must have shape [B, V, 3, H, W], got {tuple(images.shape)}")
+    b, v, _, h, w = images.shape
+    if b == 0 or v == 0 or h == 0 or w == 0:
+        raise ValueError(f"images must be non-empty, got shape {tuple(images.shape)}")
+    if h % multiple or w % multiple:
+        raise ValueError(f"images H and W must be multiples of {multiple}, got {h} x {w}")
+    out = []
+    for name, t in (("light", light), ("camera", camera)):
+        if t.dim() == 2:
+            t = t[None].expand(b, *t.shape)
+        if t.dim() != 3 or t.shape[-1] != 3:
+            raise ValueError(f"{name} must have shape [B, V, 3] or [V, 3], got {tuple(t.shape)}")
+        if t.shape[0] != b or t.shape[1] != v:
+            raise ValueError(
+                f"{name} has shape {tuple(t.shape)} but images hold B={b} batches of V={v} views; "
+                f"{name} needs one position per view ([{b}, {v}, 3])"
+            )
+        if t.device != images.device:
+            raise ValueError(f"{name} is on {t.device} but images are on {images.device}")
+        out.append(t)
+    for name, t in (("images", images), ("light", out[0]), ("camera", out[1])):
+        if not bool(torch.isfinite(t).all()):
+            raise ValueError(f"{name} holds {int((~torch.isfinite(t)).sum())} NaN or inf value(s)")
+    return images, out[0], out[1]
+
+
+class SVBRDFEstimator(ModelMixin, ConfigMixin):
+    """N-view SVBRDF estimator: ``(images, light, camera) -> Material`` (module docstring).
+
+    Example:
+        >>> import torch
+        >>> from estimator import SVBRDFEstimator
+        >>> model = SVBRDFEstimator(base_channels=8, channel_mults=(1, 2, 4), adapter_width=8, norm_groups=4)
+        >>> images = torch.rand(2, 3, 3, 32, 32)        # B=2 materials, V=3 views, linear
+        >>> light = torch.tensor([[0., 0, 4], [2, 2, 5], [-2, 1, 6]]).expand(2, 3, 3)
+        >>> camera = torch.tensor([0., 0, 4]).expand(2, 3, 3)
+        >>> model(images, light, camera).diffuse.shape
+        torch.Size([2, 3, 32, 32])
+    """
+
+    config_name = "config.json"
+
+    @register_to_config
+    def __init__(
+        self,
+        base_channels: int = 16,
+        channel_mults: Sequence[int] = (1, 2, 4, 8, 12),
+        blocks_per_level: int = 1,
+        adapter_width: int = 32,
+        norm_groups: int = 8,
+        plane_size: float = 4.0,
+    ):
+        super().__init__()
+        arch = EstimatorConfig(
+            base_channels=base_channels,
+            channel_mults=tuple(channel_mults),
+            blocks_per_level=blocks_per_level,
+            adapter_width=adapter_width,
+            norm_groups=norm_groups,
+            plane_size=plane_size,
+        )
+        self.arch = arch
+        widths = [base_channels * m for m in arch.channel_mults]
+        g = norm_groups
+
+        self.encoder = nn.ModuleList()
+        self.mix = nn.ModuleList()
+        self.pool = nn.ModuleList()
+        cin = 3 + 9
+        for i, c in enumerate(widths):
+            layers = [ConvBlock(cin, c, g, stride=1 if i == 0 else 2)]
+            layers += [ConvBlock(c, c, g) for _ in range(blocks_per_level)]
+            self.encoder.append(nn.Sequential(*layers))
+            self.mix.append(CrossViewMix(c, g))
+            self.pool.append(ViewPool(c))
+            cin = c
+        self.context = GlobalContext(widths[-1])
+
+        self.decoder = nn.ModuleList()
+        for i in reversed(range(len(widths) - 1)):
+            layers = [ConvBlock(widths[i + 1] + widths[i], widths[i], g)]
+            layers += [ConvBlock(widths[i], widths[i], g) for _ in range(blocks_per_level)]
+            self.decoder.append(nn.Sequential(*layers))
+
+        self.heads = nn.ModuleDict(
+            {
+                "diffuse": AdapterHead(widths[0], adapter_width, 3, g),
+                "normal": AdapterHead(widths[0], adapter_width, 3, g),
+                "roughness": AdapterHead(widths[0], adapter_width, 1, g),
+                "specular": AdapterHead(widths[0], adapter_width, 3, g),
+            }
+        )
+        with torch.no_grad():
+            self.heads["normal"].out.bias[2].fill_(NORMAL_Z_BIAS)
+
+    # ------------------------------------------------------------------ stages
+    def encode(self, images: torch.Tensor, light: torch.Tensor, camera: torch.Tensor) -> list[torch.Tensor]:
+        """Per-view encoding, cross-view correlation and pooling.
+
+        Args:
+            images: ``[B, V, 3, H, W]`` linear radiance (negative values clamped to 0).
+            light, camera: ``[B, V, 3]`` or ``[V, 3]`` positions (``dgrsise`` scene units).
+        Returns:
+            The pooled pyramid, one ``[B, C_i, H / 2^i, W / 2^i]`` per level; the last is
+            the bottleneck latent (global context already added).
+        """
+        images, light, camera = check_views(images, light, camera, multiple=self.arch.downsample_factor)
+        b, v, _, h, w = images.shape
+        dtype = self.dtype
+        lvh = kernels.lvh_maps(
+            light.detach().to(dtype).contiguous(), camera.detach().to(dtype).contiguous(), (h, w),
+            plane_size=self.arch.plane_size,
+        )
+        x = (torch.log(images.to(dtype).clamp_min(0) + kernels.LOG_EPS) + INPUT_SHIFT) * INPUT_SCALE
+        x = torch.cat([x, lvh.to(x.device)], dim=2).flatten(0, 1)
+        pyramid = []
+        for enc, mix, pool in zip(self.encoder, self.mix, self.pool):
+            x = mix(enc(x), v)
+            pyramid.append(pool(x, v))
+        pyramid[-1] = self.context(pyramid[-1])
+        return pyramid
+
+    def decode(self, pyramid: Sequence[torch.Tensor], latent_offset: torch.Tensor | None = None) -> torch.Tensor:
+        """Shared decoder: pyramid (+ ``latent_offset`` on the bottleneck, same shape as
+        ``pyramid[-1]``) -> full-resolution features ``[B, C_0, H, W]``."""
+        x = pyramid[-1]
+        if latent_offset is not None:
+            if latent_offset.shape != x.shape:
+                raise ValueError(f"latent_offset must have shape {tuple(x.shape)}, got {tuple(latent_offset.shape)}")
+            x = x + latent_offset
+        for block, skip in zip(self.decoder, reversed(pyramid[:-1])):
+            x = F.interpolate(x, size=skip.shape[-2:], mode="nearest")
+            x = block(torch.cat([x, skip], dim=1))
+        return x
+
+    def predict_maps(self, features: torch.Tensor) -> Material:
+        """Adapter heads: decoder features ``[B, C_0, H, W]`` -> Material (maps in [0, 1],
+        unit normals with z > 0)."""
+        diffuse = torch.sigmoid(self.heads["diffuse"](features))
+        raw = self.heads["normal"](features)
+        z = NORMAL_MIN_Z + (1 - NORMAL_MIN_Z) * torch.sigmoid(raw[:, 2:3])
+        normal = F.normalize(torch.cat([torch.tanh(raw[:, :2]), z], dim=1), dim=1)
+        roughness = torch.sigmoid(self.heads["roughness"](features))
+        specular = torch.sigmoid(self.heads["specular"](features))
+        return Material(diffuse, normal, roughness, specular)
+
+    def forward(
+        self,
+        images: torch.Tensor,
+        light: torch.Tensor,
+        camera: torch.Tensor,
+        *,
+        latent_offset: torch.Tensor | None = None,
+    ) -> Material:
+        """Estimate SVBRDF maps from V views (see ``encode`` for the argument shapes).
+
+        Returns a Material with maps ``[B, C, H, W]``: diffuse, specular (linear RGB in
+        [0, 1]), normal (unit, z > 0), roughness (in [0, 1]).
+        """
+        return self.predict_maps(self.decode(self.encode(images, light, camera), latent_offset))
+
+    # ------------------------------------------------------------------ parameter groups
+    def adapter_parameters(self) -> Iterator[nn.Parameter]:
+        """Parameters of the per-map adapter heads (what refinement fine-tunes)."""
+        return self.heads.parameters()
+
+    def latent_shape(self, batch: int, size: tuple[int, int]) -> tuple[int, int, int, int]:
+        """Shape of the bottleneck latent for ``batch`` images of ``size`` (H, W)."""
+        f = self.arch.downsample_factor
+        return (batch, self.arch.base_channels * self.arch.channel_mults[-1], size[0] // f, size[1] // f)

@@ -1,0 +1,122 @@
+"""SVBRDFEstimator: shapes, view-order invariance, checkpoint round trip, input checks."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from estimator import EstimatorConfig, SVBRDFEstimator
+from estimator.config import TINY_TEST_CONFIG
+from materials.types import Material
+
+SIZE = 32  # conftest's image side
+
+
+#: Permuting views changes only the summation order of the mean over views (float32
+#: rounding, ~1e-7 relative); 1e-5 is the tolerance the brief asks for.
+PERMUTATION_ATOL = 1e-5
+
+
+@pytest.mark.parametrize("views", [1, 3, 8])
+def test_shapes_and_ranges(tiny_model, views, random_views):
+    images, light, camera = random_views(2, views)
+    with torch.no_grad():
+        out = tiny_model(images, light, camera)
+    assert isinstance(out, Material)
+    assert out.diffuse.shape == (2, 3, SIZE, SIZE)
+    assert out.normal.shape == (2, 3, SIZE, SIZE)
+    assert out.roughness.shape == (2, 1, SIZE, SIZE)
+    assert out.specular.shape == (2, 3, SIZE, SIZE)
+    for t in (out.diffuse, out.roughness, out.specular):
+        assert float(t.min()) >= 0 and float(t.max()) <= 1
+    assert torch.allclose(out.normal.norm(dim=1), torch.ones(2, SIZE, SIZE), atol=1e-5)
+    assert float(out.normal[:, 2].min()) > 0
+    out.validate()
+
+
+def test_view_order_does_not_matter(tiny_model, random_views):
+    images, light, camera = random_views(2, 6, seed=3)
+    perm = torch.tensor([4, 1, 5, 0, 3, 2])
+    with torch.no_grad():
+        a = tiny_model(images, light, camera).stacked()
+        b = tiny_model(images[:, perm], light[:, perm], camera[:, perm]).stacked()
+    torch.testing.assert_close(a, b, atol=PERMUTATION_ATOL, rtol=0)
+
+
+def test_views_matter(tiny_model, random_views):
+    """The model is not trivially ignoring extra views or the light positions."""
+    images, light, camera = random_views(1, 3, seed=4)
+    with torch.no_grad():
+        one = tiny_model(images[:, :1], light[:, :1], camera[:, :1]).stacked()
+        three = tiny_model(images, light, camera).stacked()
+        moved = tiny_model(images, light + torch.tensor([1.0, 0.0, 0.0]), camera).stacked()
+    assert (one - three).abs().max() > 1e-4
+    assert (moved - three).abs().max() > 1e-4
+
+
+def test_shared_positions_broadcast(tiny_model, random_views):
+    images, light, camera = random_views(2, 3, seed=5)
+    light[1], camera[1] = light[0], camera[0]
+    with torch.no_grad():
+        a = tiny_model(images, light, camera).stacked()
+        b = tiny_model(images, light[0], camera[0]).stacked()
+    torch.testing.assert_close(a, b)
+
+
+def test_save_pretrained_round_trip(tiny_model, tmp_path, random_views):
+    tiny_model.save_pretrained(tmp_path / "m")
+    files = {p.name for p in (tmp_path / "m").iterdir()}
+    assert "config.json" in files and any(f.endswith(".safetensors") for f in files)
+    loaded = SVBRDFEstimator.from_pretrained(tmp_path / "m").eval()
+    assert loaded.arch == tiny_model.arch
+    images, light, camera = random_views(1, 3, seed=6)
+    with torch.no_grad():
+        torch.testing.assert_close(
+            loaded(images, light, camera).stacked(), tiny_model(images, light, camera).stacked(), atol=0, rtol=0
+        )
+
+
+def test_default_size_budget():
+    """The shipped architecture stays small (brief: < ~2.5 M params, safetensors < 10 MB)."""
+    model = SVBRDFEstimator()
+    params = sum(p.numel() for p in model.parameters())
+    assert params < 2_500_000
+    assert params * 4 < 10_000_000
+    assert model.arch == EstimatorConfig()  # model defaults and dataclass defaults agree
+
+
+def test_latent_offset_changes_output(tiny_model, random_views):
+    images, light, camera = random_views(1, 2, seed=7)
+    shape = tiny_model.latent_shape(1, (SIZE, SIZE))
+    with torch.no_grad():
+        pyramid = tiny_model.encode(images, light, camera)
+        assert tuple(pyramid[-1].shape) == shape
+        base = tiny_model.predict_maps(tiny_model.decode(pyramid)).stacked()
+        zero = tiny_model(images, light, camera, latent_offset=torch.zeros(shape)).stacked()
+        moved = tiny_model(images, light, camera, latent_offset=torch.ones(shape)).stacked()
+    torch.testing.assert_close(base, zero, atol=0, rtol=0)
+    assert (moved - base).abs().max() > 1e-3
+    with pytest.raises(ValueError, match="latent_offset"):
+        tiny_model(images, light, camera, latent_offset=torch.zeros(1, 1, 1, 1))
+
+
+@pytest.mark.parametrize(
+    "mutate, name",
+    [
+        (lambda i, l, c: (i[:, 0], l, c), "images"),  # [B, 3, H, W]
+        (lambda i, l, c: (i[:, :, :2], l, c), "images"),  # 2 channels
+        (lambda i, l, c: (i, l[:, :2], c), "light"),  # 2 positions for 3 views
+        (lambda i, l, c: (i, l, c[:, :, :2]), "camera"),  # [B, V, 2]
+        (lambda i, l, c: (i[..., :30, :30], l, c), "images"),  # not a multiple of 4
+        (lambda i, l, c: (i.index_put((torch.tensor(0),), torch.tensor(float("nan"))), l, c), "images"),
+        (lambda i, l, c: (i, l.index_put((torch.tensor(0),), torch.tensor(float("inf"))), c), "light"),
+    ],
+)
+def test_bad_input_raises_value_error_naming_argument(tiny_model, mutate, name, random_views):
+    images, light, camera = mutate(*random_views(1, 3, seed=8))
+    with pytest.raises(ValueError, match=name):
+        tiny_model(images, light, camera)
+
+
+def test_tiny_config_is_small():
+    assert sum(p.numel() for p in SVBRDFEstimator(**TINY_TEST_CONFIG.to_dict()).parameters()) < 50_000
