@@ -16,7 +16,7 @@ import warp as wp
 
 from kernels._image_kernels import build_image_kernels
 from kernels._render_kernels import build_render_kernels
-from kernels._warp import chunk_bounds, parallel_chunks, warp_device, warp_scalar, wp_array
+from kernels._warp import chunk_bounds, parallel_chunks, preload, warp_device, warp_scalar, wp_array
 
 __all__ = ["Scene", "RenderFunction", "RenderLogL1Function", "RowLossFunction"]
 
@@ -86,6 +86,7 @@ def _launch_shading(name, maps, light, camera, scene, extra, output, *, grads=No
             adj_inputs=[*adj_maps, *adj_pos, *adj_consts, 0, 0, *adj_tail], adj_outputs=[wadj_out],
         )
 
+    preload(kernel, warp_device(device))
     parallel_chunks(chunks, launch)
 
 
@@ -208,4 +209,5 @@ def _launch_rows(x, y, kind, eps, partial, adj=None):
                 adj_inputs=[wp_array(adj[0]), wp_array(adj[1]), *adj_scalars, 0], adj_outputs=[wp_array(adj[2])],
             )
 
+    preload(kernel, warp_device(x.device))
     parallel_chunks(chunk_bounds(x.shape[0], x.device), launch)

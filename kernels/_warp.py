@@ -19,7 +19,10 @@ from typing import Callable, Iterator
 import torch
 import warp as wp
 
-__all__ = ["ensure_init", "warp_device", "warp_scalar", "cpu_threads", "chunk_bounds", "parallel_chunks", "wp_array"]
+__all__ = [
+    "ensure_init", "warp_device", "warp_scalar", "cpu_threads", "chunk_bounds", "parallel_chunks", "preload",
+    "wp_array",
+]
 
 #: Environment variable that overrides where Warp caches compiled kernels.
 CACHE_ENV = "DGRSISE_WARP_CACHE"
@@ -122,6 +125,19 @@ def chunk_bounds(n: int, device: torch.device) -> list[tuple[int, int]]:
     threads = min(cpu_threads(), n) if device.type == "cpu" else 1
     bounds = [round(i * n / max(threads, 1)) for i in range(max(threads, 1) + 1)]
     return [(bounds[i], bounds[i + 1] - bounds[i]) for i in range(len(bounds) - 1) if bounds[i + 1] > bounds[i]]
+
+
+def preload(kernel, device: str) -> None:
+    """Load ``kernel``'s module on ``device`` (compiling it on a cold cache) before launches
+    fan out to the thread pool. Warp loads a module on its first launch without a
+    per-module lock, so concurrent first launches from the pool threads would each compile
+    it (measured on 2 cores: 14.5 s cold instead of 2.2 s)."""
+    _preload(kernel.module, device)
+
+
+@cache
+def _preload(module, device: str) -> None:
+    wp.load_module(module, device=device)
 
 
 def parallel_chunks(chunks: list[tuple[int, int]], launch: Callable[[int, int, int], None]) -> None:

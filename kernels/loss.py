@@ -68,7 +68,7 @@ def log_l1_loss(x: torch.Tensor, y: torch.Tensor, eps: float = LOG_EPS) -> torch
     (same) shape, non-negative. Gradient to ``x`` only (``y`` is the target). Scalar."""
     ensure_init()
     _pair(x, y)
-    if float(x.detach().min()) <= -eps or float(y.min()) <= -eps:
+    if float(x.detach().min()) <= -eps or float(y.detach().min()) <= -eps:
         raise ValueError(f"log_l1_loss needs x, y > -eps ({eps}); got values below it")
     return _mean(RowLossFunction.apply(_rows(x), _rows(y), "log_l1", eps), x.numel())
 
@@ -115,8 +115,8 @@ def rendering_loss(
     if tuple(target.shape) != (b, k, 3, h, w):
         raise ValueError(f"target must have shape {(b, k, 3, h, w)} (B, K, 3, H, W), got {tuple(target.shape)}")
     check_finite(target=target)
-    if float(target.min()) <= -eps:
-        raise ValueError(f"target must be > -eps ({eps}) for the log; found {float(target.min()):.4g}")
+    if float(target.detach().min()) <= -eps:
+        raise ValueError(f"target must be > -eps ({eps}) for the log; found {float(target.detach().min()):.4g}")
     p = resolve_preset(preset, **overrides)
     scene = Scene(p.plane_size, p.intensity, p.inverse_square, p.roughness_floor)
     partial = RenderLogL1Function.apply(diffuse, normal, roughness, specular, light, camera, target, scene, eps)

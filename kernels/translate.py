@@ -14,7 +14,7 @@ import warp as wp
 from kernels._checks import check_finite, check_same, check_tensor
 from kernels._image_kernels import build_image_kernels
 from kernels.geometry import highlight_offsets, mirror_point  # re-exported
-from kernels._warp import chunk_bounds, ensure_init, parallel_chunks, warp_device, warp_scalar, wp_array
+from kernels._warp import chunk_bounds, ensure_init, parallel_chunks, preload, warp_device, warp_scalar, wp_array
 
 __all__ = ["translate", "highlight_offsets", "mirror_point"]
 
@@ -38,6 +38,7 @@ def _launch(features, offsets, out, *, adjoint=False, adj_features=None, adj_off
         )
 
     # Batch chunks touch disjoint samples (features, offsets and outputs alike).
+    preload(kern, dev)
     parallel_chunks(chunk_bounds(b, features.device), launch)
 
 

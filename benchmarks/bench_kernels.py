@@ -1,0 +1,480 @@
+"""Benchmark the Warp kernels against their pure-torch twins (``kernels.reference``).
+
+Usage::
+
+    python benchmarks/bench_kernels.py [--quick] [--threads N] [--out benchmarks/results/kernels.json]
+
+Both sides get the same thread budget: ``torch.set_num_threads(N)`` and
+``DGRSISE_KERNEL_THREADS=N`` (default N=2, this machine's cores). Each case runs in
+subprocesses, Warp beside the reference:
+
+- timings: one subprocess per case builds both sides and interleaves their repeats
+  (Warp, torch, Warp, ...) after warm-up, so a change in the shared machine's load hits
+  both alike; median and min/max (and quartiles in the JSON) over the repeats. Forward
+  and backward are timed separately. Throughput and speed-up use wall-clock medians;
+  the process CPU time of a step (all threads) is reported beside them, since on a
+  shared machine the wall clock also measures the other jobs;
+- peak extra memory: a fresh subprocess per side measures the rise of the process's
+  peak RSS (``VmHWM``, reset through ``/proc/self/clear_refs``; ``ru_maxrss`` as a
+  fallback) during one step over its RSS once the inputs are allocated and the kernels
+  loaded. It counts the outputs, the saved tensors, the gradients and every temporary
+  (tracemalloc does not see torch's allocations).
+
+Compile time is measured apart from run time, per Warp module: a subprocess with an
+empty kernel cache (``DGRSISE_WARP_CACHE`` = a fresh folder) times each module's first
+call minus a steady call (cold compile); a second subprocess on the same cache does the
+same (warm load from the cache).
+
+Results go to a JSON file and are printed as markdown tables.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "kernels.json"
+THREADS_ENV = "DGRSISE_KERNEL_THREADS"
+CACHE_ENV = "DGRSISE_WARP_CACHE"
+IMPLS = ("warp", "torch")
+
+
+@dataclass(frozen=True)
+class Case:
+    """One benchmark: an operation, a mode and a problem size."""
+
+    name: str
+    op: str  # "render" | "translate" | "rendering_loss"
+    mode: str  # "fwd" | "fwd_bwd"
+    b: int
+    h: int
+    w: int
+    k: int = 1  # lights (render, rendering_loss)
+    c: int = 1  # channels (translate)
+
+    @property
+    def work(self) -> int:
+        """Work items: pixel-lights for rendering, feature elements for translate."""
+        return self.b * self.h * self.w * (self.c if self.op == "translate" else self.k)
+
+    @property
+    def unit(self) -> str:
+        return "Melem/s" if self.op == "translate" else "Mpixel-lights/s"
+
+    @property
+    def size(self) -> str:
+        extra = f"C={self.c}" if self.op == "translate" else f"K={self.k}"
+        return f"B={self.b} {extra} {self.h}x{self.w}"
+
+
+def make_cases(quick: bool) -> list[Case]:
+    if quick:
+        cases = [
+            Case("render_fwd", "render", "fwd", b=2, k=2, h=64, w=64),
+            Case("render_fwd_bwd", "render", "fwd_bwd", b=2, k=2, h=64, w=64),
+            Case("translate_fwd", "translate", "fwd", b=2, c=8, h=32, w=32),
+            Case("translate_fwd_bwd", "translate", "fwd_bwd", b=2, c=8, h=32, w=32),
+            Case("rendering_loss_fwd_bwd", "rendering_loss", "fwd_bwd", b=2, k=3, h=64, w=64),
+        ]
+        sweep = [32, 64]
+    else:
+        cases = [
+            Case("render_fwd", "render", "fwd", b=8, k=8, h=256, w=256),
+            Case("render_fwd_bwd", "render", "fwd_bwd", b=8, k=8, h=256, w=256),
+            Case("translate_fwd", "translate", "fwd", b=8, c=64, h=64, w=64),
+            Case("translate_fwd_bwd", "translate", "fwd_bwd", b=8, c=64, h=64, w=64),
+            Case("rendering_loss_fwd_bwd", "rendering_loss", "fwd_bwd", b=8, k=9, h=256, w=256),
+        ]
+        sweep = [64, 128, 256, 512]
+    b, k = cases[0].b, cases[0].k
+    cases += [Case(f"render_fwd_sweep_{s}", "render", "fwd", b=b, k=k, h=s, w=s) for s in sweep]
+    return cases
+
+
+# ----------------------------------------------------------------------------- worker side
+def _rss_kb(field: str) -> int | None:
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith(field + ":"):
+                    return int(line.split()[1])
+    except OSError:
+        return None
+    return None
+
+
+def _reset_peak() -> bool:
+    """Reset VmHWM to the current RSS (Linux >= 4.0); False where that is not possible."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def _peak_kb() -> int:
+    hwm = _rss_kb("VmHWM")
+    return hwm if hwm is not None else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+
+
+def _setup(case: Case, impl: str, device: str, seed: int = 0):
+    """Inputs and a step function (fwd, or fwd then bwd) for one case and implementation."""
+    import torch
+
+    import kernels
+    from kernels import reference
+
+    g = torch.Generator().manual_seed(seed)
+    need_grad = case.mode == "fwd_bwd"
+
+    def rand(*shape, lo=0.0, hi=1.0):
+        return (lo + (hi - lo) * torch.rand(shape, generator=g)).to(device)
+
+    lib = kernels if impl == "warp" else reference
+    if case.op == "translate":
+        feats = torch.randn((case.b, case.c, case.h, case.w), generator=g).to(device).requires_grad_(need_grad)
+        offs = rand(case.b, 2, lo=-5.0, hi=5.0).requires_grad_(need_grad)
+        leaves = [feats, offs]
+
+        def forward():
+            return lib.translate(feats, offs)
+
+        cot = torch.randn((case.b, case.c, case.h, case.w), generator=g).to(device) if need_grad else None
+    else:
+        normal = torch.cat([rand(case.b, 2, case.h, case.w, lo=-0.6, hi=0.6),
+                            torch.ones(case.b, 1, case.h, case.w, device=device)], 1)
+        maps = [
+            rand(case.b, 3, case.h, case.w),
+            normal / normal.norm(dim=1, keepdim=True),
+            rand(case.b, 1, case.h, case.w, lo=0.15, hi=1.0),
+            rand(case.b, 3, case.h, case.w),
+        ]
+        maps = [m.requires_grad_(need_grad) for m in maps]
+        light = torch.cat([rand(case.b, case.k, 2, lo=-4, hi=4), rand(case.b, case.k, 1, lo=4, hi=8)], -1)
+        camera = torch.tensor([0.0, 0.0, 4.0], device=device)
+        leaves = maps
+        if case.op == "render":
+
+            def forward():
+                return lib.render(*maps, light, camera)
+
+            cot = torch.randn((case.b, case.k, 3, case.h, case.w), generator=g).to(device) if need_grad else None
+        else:
+            with torch.no_grad():
+                target = kernels.render(*[m.detach() * 0.9 for m in maps], light, camera)
+
+            def forward():
+                return lib.rendering_loss(*maps, target, light, camera)
+
+            cot = None
+
+    def backward(out):
+        for t in leaves:
+            t.grad = None
+        out.backward(cot)
+
+    return forward, (backward if need_grad else None)
+
+
+def _sync(device: str) -> None:
+    if device.startswith("cuda"):
+        import torch
+
+        torch.cuda.synchronize()
+
+
+def _load(case: Case, impl: str, device: str) -> None:
+    """Load (or compile) the Warp modules on a tiny problem, so that neither memory nor
+    the timings include it: compile time is reported apart."""
+    small = Case(case.name, case.op, case.mode, b=1, h=4, w=4, k=case.k, c=case.c)
+    fwd, bwd = _setup(small, impl, device)
+    out = fwd()
+    if bwd:
+        bwd(out)
+
+
+def memory_worker(case: Case, impl: str, device: str) -> dict:
+    """Runs inside a fresh subprocess: the peak RSS rise of one step (fwd, or fwd + bwd)
+    over the RSS with the inputs allocated and the kernels loaded."""
+    import torch
+
+    torch.set_num_threads(int(os.environ[THREADS_ENV]))
+    _load(case, impl, device)
+    forward, backward = _setup(case, impl, device)
+    with torch.enable_grad() if backward else torch.no_grad():
+        _sync(device)
+        base_kb = _rss_kb("VmRSS") or resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        reset = _reset_peak()
+        out = forward()
+        if backward:
+            backward(out)
+        _sync(device)
+        peak_kb = _peak_kb()
+    return {
+        "peak_extra_mb": (peak_kb - base_kb) / 1024,
+        "peak_method": "VmHWM reset" if reset else "ru_maxrss (includes earlier peaks)",
+    }
+
+
+def timing_worker(case: Case, device: str, warmup: int, repeats: int) -> dict:
+    """Runs inside a subprocess: both implementations, their repeats interleaved (warp,
+    torch, warp, ...) so that a change in the machine's load hits both alike."""
+    import torch
+
+    torch.set_num_threads(int(os.environ[THREADS_ENV]))
+    steps, times = {}, {}
+    for impl in IMPLS:
+        _load(case, impl, device)
+        steps[impl] = _setup(case, impl, device)
+        times[impl] = {"fwd_s": [], "bwd_s": [], "total_s": [], "cpu_s": []}
+    for i in range(warmup + repeats):
+        for impl in IMPLS:
+            forward, backward = steps[impl]
+            with torch.enable_grad() if backward else torch.no_grad():
+                _sync(device)
+                c0, t0 = time.process_time(), time.perf_counter()
+                out = forward()
+                _sync(device)
+                t1 = time.perf_counter()
+                if backward:
+                    backward(out)
+                    _sync(device)
+                t2, c2 = time.perf_counter(), time.process_time()
+                del out
+            if i >= warmup:
+                times[impl]["cpu_s"].append(c2 - c0)
+                times[impl]["fwd_s"].append(t1 - t0)
+                times[impl]["bwd_s"].append(t2 - t1)
+                times[impl]["total_s"].append(t2 - t0)
+    for impl in IMPLS:
+        if steps[impl][1] is None:
+            times[impl]["bwd_s"] = None
+    return times
+
+
+def compile_worker(modules: list[str]) -> dict:
+    """Runs inside a subprocess with $DGRSISE_WARP_CACHE set: per Warp module, the first
+    call's time minus a steady call's (compile or cache load), plus Warp's init time."""
+    import torch
+
+    torch.set_num_threads(int(os.environ[THREADS_ENV]))
+    t0 = time.perf_counter()
+    import kernels
+    from kernels._warp import ensure_init
+
+    t1 = time.perf_counter()
+    ensure_init()
+    t2 = time.perf_counter()
+    result = {"import_s": t1 - t0, "init_s": t2 - t1, "modules": {}}
+
+    # A trivial kernel first: with an empty cache, Warp's first CPU compile also pays a
+    # one-time toolchain/runtime set-up that belongs to no module of ours.
+    import warp as wp
+
+    @wp.kernel(module="bench_toolchain_probe")
+    def probe(x: wp.array(dtype=float)):
+        x[wp.tid()] = 1.0
+
+    probe_arg = wp.zeros(4, dtype=float, device="cpu")
+    t = time.perf_counter()
+    wp.launch(probe, dim=4, inputs=[probe_arg], device="cpu")
+    first = time.perf_counter() - t
+    t = time.perf_counter()
+    wp.launch(probe, dim=4, inputs=[probe_arg], device="cpu")
+    steady = time.perf_counter() - t
+    result["modules"]["(warp toolchain, trivial kernel)"] = {"first_s": first, "steady_s": steady,
+                                                               "load_s": first - steady}
+    for module in modules:
+        op, dtype_name = module.rsplit("_", 1)
+        dtype = {"f32": torch.float32, "f64": torch.float64}[dtype_name]
+        if op == "render":
+            n = torch.zeros(1, 3, 4, 4, dtype=dtype)
+            n[:, 2] = 1
+            args = (torch.rand(1, 3, 4, 4, dtype=dtype), n, torch.full((1, 1, 4, 4), 0.5, dtype=dtype),
+                    torch.rand(1, 3, 4, 4, dtype=dtype), torch.tensor([[1.0, 0.0, 4.0]], dtype=dtype),
+                    torch.tensor([0.0, 0.0, 4.0], dtype=dtype))
+
+            def call(args=args):
+                kernels.render(*args)
+        else:  # the image module: translate, the row losses and the fused rendering loss
+            f, o = torch.rand(1, 2, 4, 4, dtype=dtype), torch.tensor([[0.5, 0.25]], dtype=dtype)
+
+            def call(f=f, o=o):
+                kernels.translate(f, o)
+
+        t = time.perf_counter()
+        call()
+        first = time.perf_counter() - t
+        steady = []
+        for _ in range(5):
+            t = time.perf_counter()
+            call()
+            steady.append(time.perf_counter() - t)
+        result["modules"][module] = {"first_s": first, "steady_s": statistics.median(steady),
+                                     "load_s": first - statistics.median(steady)}
+    return result
+
+
+# ----------------------------------------------------------------------------- driver side
+def _spawn(args: list[str], env_extra: dict[str, str], threads: int) -> dict:
+    env = dict(os.environ)
+    env.update(env_extra)
+    env[THREADS_ENV] = str(threads)
+    env["OMP_NUM_THREADS"] = str(threads)
+    proc = subprocess.run([sys.executable, str(Path(__file__).resolve()), *args], env=env,
+                          capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"worker {args} failed:\n{proc.stderr[-4000:]}")
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def _stats(xs: list[float] | None) -> dict | None:
+    if not xs:
+        return None
+    q = statistics.quantiles(xs, n=4) if len(xs) >= 2 else [xs[0]] * 3
+    return {"median": statistics.median(xs), "min": min(xs), "max": max(xs), "q1": q[0], "q3": q[2], "n": len(xs)}
+
+
+def _fmt_ms(s: dict | None) -> str:
+    if s is None:
+        return "-"
+    return f"{s['median'] * 1e3:.1f} [{s['min'] * 1e3:.1f}-{s['max'] * 1e3:.1f}]"
+
+
+def markdown(report: dict) -> str:
+    meta = report["meta"]
+    lines = [
+        f"Threads: {meta['threads']} (torch.set_num_threads and {THREADS_ENV}); device {meta['device']}; "
+        f"torch {meta['torch']}, warp {meta['warp']}; {meta['cpu']}; "
+        f"median [min-max] of {meta['repeats']} repeats after {meta['warmup']} warm-up, Warp and torch "
+        f"interleaved; load average {meta['loadavg_before'][0]:.1f} before, {meta['loadavg_after'][0]:.1f} after "
+        f"on {meta['cores']} cores (the machine is shared).",
+        "",
+        "| case | size | impl | fwd ms | bwd ms | fwd+bwd ms | CPU ms | throughput | speed-up | peak extra MB |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for row in report["cases"]:
+        for impl in IMPLS:
+            r = row[impl]
+            speed = f"{row['speedup']:.2f}x" if impl == "warp" else "1.00x"
+            lines.append(
+                f"| {row['name']} | {row['size']} | {impl} | {_fmt_ms(r['fwd'])} | {_fmt_ms(r['bwd'])} | "
+                f"{_fmt_ms(r['total']) if r['bwd'] else '-'} | {r['cpu']['median'] * 1e3:.0f} | "
+                f"{r['throughput']:.1f} {row['unit']} | {speed} | "
+                f"{r['peak_extra_mb']:.0f} |"
+            )
+    comp = report.get("compile")
+    if comp:
+        lines += [
+            "",
+            f"import kernels (and warp) {comp['cold']['import_s']:.2f} s, Warp init {comp['cold']['init_s'] * 1e3:.0f} ms.",
+            "",
+            "| Warp module | cold compile s | warm load ms | steady call ms |",
+            "|---|---|---|---|",
+        ]
+        for module, cold in comp["cold"]["modules"].items():
+            warm = comp["warm"]["modules"][module]
+            lines.append(f"| {module} | {cold['load_s']:.2f} | {warm['load_s'] * 1e3:.1f} | "
+                         f"{warm['steady_s'] * 1e3:.2f} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="small sizes and few repeats (smoke run)")
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="JSON results file")
+    parser.add_argument("--threads", type=int, default=2, help="thread budget for both sides")
+    parser.add_argument("--device", default="cpu", help="cpu or cuda")
+    parser.add_argument("--repeats", type=int, default=None, help="timed repeats (default 7, quick 3)")
+    parser.add_argument("--warmup", type=int, default=None, help="untimed warm-up runs (default 2, quick 1)")
+    parser.add_argument("--no-compile", action="store_true", help="skip the compile-time measurement")
+    parser.add_argument("--worker", help=argparse.SUPPRESS)
+    parser.add_argument("--compile-worker", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+
+    if args.worker:  # subprocess: one case's timings (both sides) or one side's memory
+        spec = json.loads(args.worker)
+        case = Case(**spec["case"])
+        if spec["what"] == "time":
+            result = timing_worker(case, spec["device"], spec["warmup"], spec["repeats"])
+        else:
+            result = memory_worker(case, spec["impl"], spec["device"])
+        print(json.dumps(result))
+        return result
+    if args.compile_worker:
+        result = compile_worker(json.loads(args.compile_worker))
+        print(json.dumps(result))
+        return result
+
+    import torch
+    import warp
+
+    repeats = args.repeats or (3 if args.quick else 7)
+    warmup = args.warmup if args.warmup is not None else (1 if args.quick else 2)
+    report = {
+        "meta": {
+            "threads": args.threads, "device": args.device, "quick": args.quick, "repeats": repeats,
+            "warmup": warmup, "torch": torch.__version__, "warp": warp.__version__,
+            "python": platform.python_version(), "cpu": _cpu_name(), "date": time.strftime("%Y-%m-%d %H:%M:%S"),
+            "cores": len(os.sched_getaffinity(0)), "loadavg_before": os.getloadavg(),
+        },
+        "cases": [],
+    }
+    for case in make_cases(args.quick):
+        row = {"name": case.name, "size": case.size, "unit": case.unit, "case": asdict(case)}
+        spec = {"case": asdict(case), "device": args.device, "warmup": warmup, "repeats": repeats}
+        timing = _spawn(["--worker", json.dumps({**spec, "what": "time"})], {}, args.threads)
+        for impl in IMPLS:
+            memory = _spawn(["--worker", json.dumps({**spec, "what": "memory", "impl": impl})], {}, args.threads)
+            raw = timing[impl]
+            total = _stats(raw["total_s"])
+            row[impl] = {
+                "fwd": _stats(raw["fwd_s"]), "bwd": _stats(raw["bwd_s"]), "total": total, "cpu": _stats(raw["cpu_s"]),
+                "throughput": case.work / total["median"] / 1e6, **memory, "raw": raw,
+            }
+            print(f"{case.name:28s} {impl:5s} {total['median'] * 1e3:9.1f} ms  "
+                  f"{row[impl]['throughput']:7.1f} {case.unit}  +{memory['peak_extra_mb']:.0f} MB", flush=True)
+        row["speedup"] = row["torch"]["total"]["median"] / row["warp"]["total"]["median"]
+        report["cases"].append(row)
+    report["meta"]["loadavg_after"] = os.getloadavg()
+
+    if not args.no_compile:
+        modules = ["render_f32", "image_f32"] + ([] if args.quick else ["render_f64", "image_f64"])
+        with tempfile.TemporaryDirectory(prefix="dgrsise-warp-cache-") as cache:
+            env = {CACHE_ENV: cache}
+            cold = _spawn(["--compile-worker", json.dumps(modules)], env, args.threads)
+            warm = _spawn(["--compile-worker", json.dumps(modules)], env, args.threads)
+        report["compile"] = {"cold": cold, "warm": warm}
+
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(report, indent=2))
+    print()
+    print(markdown(report))
+    print(f"\nwrote {args.out}")
+    return report
+
+
+def _cpu_name() -> str:
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
+
+
+if __name__ == "__main__":
+    main()
