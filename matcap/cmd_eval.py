@@ -1,0 +1,82 @@
+"""``relight eval relight``: the Table-1-style relighting evaluation (``relight.evaluate``)."""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+
+from matcap.errors import UsageError
+
+__all__ = ["add_parser", "run", "EVAL_MARKER"]
+
+#: File that marks a folder written by ``relight eval relight`` (safe to --overwrite).
+EVAL_MARKER = "relight_eval.json"
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("eval", help="evaluations (relight)", description="Evaluations of the models.")
+    what = p.add_subparsers(dest="what", required=True, metavar="WHAT")
+    r = what.add_parser(
+        "relight",
+        help="relighting metrics on held-out procedural materials (Table 1 style)",
+        description="Relight held-out procedural materials from their flash photo to the 7 evaluation "
+        "lights with each method; writes relight_eval.md (table), relight_eval.json (per-image values) "
+        "and relight_eval.png (pictures).",
+    )
+    r.add_argument("--out", required=True, type=Path, help="output folder (created)")
+    r.add_argument("--count", type=int, default=16, help="held-out materials (default %(default)s)")
+    r.add_argument("--size", type=int, default=64, help="image side in pixels (default %(default)s)")
+    r.add_argument("--methods", default=None, help="comma-separated relighter names (default: every "
+                   "registered one whose weights are present)")
+    r.add_argument("--checkpoint", action="append", default=[], metavar="NAME=PATH",
+                   help="checkpoint folder of a method (repeat); default: its shipped weights")
+    r.add_argument("--samples", type=int, default=1, help="samples of stochastic methods; >1 adds a "
+                   "'mean of N' row (default %(default)s)")
+    r.add_argument("--chunk", type=int, default=4, help="materials per relight call (default %(default)s)")
+    r.add_argument("--seed", type=int, default=0, help="generator seed of stochastic methods")
+    r.add_argument("--overwrite", action="store_true", help="replace an output folder written by this command")
+    r.set_defaults(run=run)
+
+
+def _checkpoints(items: list[str]) -> dict[str, str]:
+    out = {}
+    for item in items:
+        name, sep, path = item.partition("=")
+        if not sep or not name or not path:
+            raise UsageError(f"--checkpoint {item!r} must be NAME=PATH")
+        out[name] = path
+    return out
+
+
+def run(args) -> int:
+    from materials.io.atomic import atomic_folder
+    from relight.evaluate import EvalConfig, evaluate, format_table, write_report
+    from relight.interface import get_relighter, relighter_names
+
+    cfg = EvalConfig(count=args.count, size=args.size, chunk=args.chunk, samples=args.samples, seed=args.seed)
+    checkpoints = _checkpoints(args.checkpoint)
+    known = relighter_names(discover=True)
+    explicit = args.methods is not None
+    names = [n.strip() for n in args.methods.split(",") if n.strip()] if explicit else known
+    if not names:
+        raise UsageError("--methods names no method")
+    for name in list(names) + list(checkpoints):
+        if name not in known:
+            raise UsageError(f"unknown method {name!r}; known: {', '.join(known)}")
+    relighters = {}
+    for name in names:
+        try:
+            relighters[name] = get_relighter(name, checkpoints.get(name))
+        except FileNotFoundError as exc:
+            if explicit or name in checkpoints:
+                raise
+            print(f"skipping {name}: {exc}", file=sys.stderr)
+    command = "relight " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["eval"] else None
+    result = evaluate(relighters, cfg)
+    with atomic_folder(args.out, overwrite=args.overwrite, marker=EVAL_MARKER) as tmp:
+        write_report(result, tmp, command=command)
+    print(format_table(result))
+    print(f"wrote {args.out}")
+    return 0

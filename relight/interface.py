@@ -1,0 +1,296 @@
+"""The common relighting interface: every relighting model and baseline is a ``Relighter``.
+
+One call relights B flash photos to K target lights each::
+
+    relit = relighter.relight(photo, camera, lights)          # [B, K, 3, H, W]
+
+- ``photo``: ``[B, 3, H, W]`` linear radiance (not tone-mapped), lit by a point light at
+  the camera (the phone flash; SPEC section 1), float32 or float64, finite, >= 0.
+- ``camera``: ``[B, 3]`` camera positions (also the input light), scene units of the
+  ``dgrsise`` preset (plane of side 4 at z = 0; SPEC section 2), above the plane.
+- ``lights``: ``[B, K, 3]`` target point-light positions, above the plane; the camera
+  does not move.
+- returns ``[B, K, 3, H, W]`` linear radiance, same dtype and device as ``photo``.
+- ``generator``: a ``torch.Generator`` for stochastic relighters (diffusion); the
+  deterministic ones ignore it.
+
+``Relighter.relight`` validates once at this boundary (``ValueError`` / ``TypeError``
+naming the argument) and then calls the subclass's ``_relight`` with valid inputs.
+
+Registry: ``get_relighter(name, checkpoint=None)`` builds a relighter by name;
+``register_relighter(name, factory)`` adds one, ``relighter_names()`` lists them. A name
+not registered yet is looked up by importing ``relight.<name>``, which registers itself
+on import (so the diffusion model, ``relight.diffusion``, plugs in as ``"diffusion"``
+without this module knowing it). Built in:
+
+- ``"input"``: the photo unchanged for every target (the trivial baseline).
+- ``"lambertian"``: the analytic baseline (``LambertianRelighter``).
+- ``"bieron"``: ``relight.bieron.BieronRelighter`` behind ``NetworkRelighter``; with no
+  checkpoint, the weights shipped in ``relight/weights/bieron``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+from abc import ABC, abstractmethod
+from pathlib import Path
+from typing import Callable
+
+import torch
+
+import kernels
+from kernels.presets import RenderPreset, get_preset
+
+__all__ = [
+    "Relighter",
+    "InputRelighter",
+    "LambertianRelighter",
+    "NetworkRelighter",
+    "check_relight_inputs",
+    "get_relighter",
+    "register_relighter",
+    "relighter_names",
+    "SHIPPED_WEIGHTS",
+]
+
+#: Package folder of the shipped checkpoints (``<name>/config.json`` + safetensors).
+SHIPPED_WEIGHTS = Path(__file__).resolve().parent / "weights"
+
+_FLOATS = (torch.float32, torch.float64)
+
+
+def _check_positions(name: str, pos, shape: tuple, ref: torch.Tensor) -> None:
+    if not isinstance(pos, torch.Tensor):
+        raise TypeError(f"{name} must be a torch.Tensor, got {type(pos).__name__}")
+    if pos.dtype not in _FLOATS:
+        raise TypeError(f"{name} must be float32 or float64, got {pos.dtype}")
+    if tuple(pos.shape) != shape:
+        dims = "[B, 3]" if len(shape) == 2 else "[B, K, 3]"
+        raise ValueError(f"{name} must have shape {dims} = {shape}, got {tuple(pos.shape)}")
+    if pos.device != ref.device:
+        raise ValueError(f"{name} is on {pos.device} but photo is on {ref.device}; use one device")
+    if not bool(torch.isfinite(pos).all()):
+        raise ValueError(f"{name} holds NaN or inf values")
+    if bool((pos[..., 2] <= 0).any()):
+        raise ValueError(f"{name} has a position on or below the material plane (z must be > 0)")
+
+
+def check_relight_inputs(photo, camera, lights) -> tuple[int, int, int, int]:
+    """Validate a ``relight`` call (module docstring); return (B, K, H, W).
+
+    Raises:
+        TypeError: a non-tensor or a non-float dtype.
+        ValueError: a wrong shape or channel count, NaN/inf, negative radiance, a light
+            or camera on or below the plane, or mismatched devices; naming the argument.
+    """
+    if not isinstance(photo, torch.Tensor):
+        raise TypeError(f"photo must be a torch.Tensor, got {type(photo).__name__}")
+    if photo.dtype not in _FLOATS:
+        raise TypeError(f"photo must be float32 or float64, got {photo.dtype}")
+    if photo.dim() != 4:
+        raise ValueError(f"photo must have shape [B, 3, H, W], got {tuple(photo.shape)}")
+    b, c, h, w = photo.shape
+    if c != 3:
+        raise ValueError(f"photo must have 3 (RGB) channels at dim 1, got {c} (shape {tuple(photo.shape)})")
+    if b == 0 or h == 0 or w == 0:
+        raise ValueError(f"photo must be non-empty, got shape {tuple(photo.shape)}")
+    if not bool(torch.isfinite(photo).all()):
+        raise ValueError("photo holds NaN or inf values")
+    if bool((photo < 0).any()):
+        raise ValueError("photo holds negative values; expected linear radiance >= 0")
+    if not isinstance(lights, torch.Tensor) or lights.dim() != 3:
+        shape = tuple(lights.shape) if isinstance(lights, torch.Tensor) else type(lights).__name__
+        raise ValueError(f"lights must have shape [B, K, 3], got {shape}")
+    k = lights.shape[1]
+    if k == 0:
+        raise ValueError("lights must hold at least one target light (K >= 1)")
+    _check_positions("camera", camera, (b, 3), photo)
+    _check_positions("lights", lights, (b, k, 3), photo)
+    return b, k, h, w
+
+
+class Relighter(ABC):
+    """A relighting method: flash photo -> the same material under K point lights.
+
+    Subclasses implement ``_relight`` (inputs already validated, see the module
+    docstring); callers use ``relight``.
+    """
+
+    #: Registry name (for tables and file names).
+    name: str = "relighter"
+
+    def relight(
+        self,
+        photo: torch.Tensor,
+        camera: torch.Tensor,
+        lights: torch.Tensor,
+        *,
+        generator: torch.Generator | None = None,
+    ) -> torch.Tensor:
+        """Relight ``photo [B, 3, H, W]`` (linear, flash at ``camera [B, 3]``) to
+        ``lights [B, K, 3]``: ``[B, K, 3, H, W]`` linear radiance (module docstring)."""
+        b, k, h, w = check_relight_inputs(photo, camera, lights)
+        out = self._relight(photo, camera.to(photo.dtype), lights.to(photo.dtype), generator=generator)
+        if tuple(out.shape) != (b, k, 3, h, w):
+            raise RuntimeError(f"{type(self).__name__} returned {tuple(out.shape)}, expected {(b, k, 3, h, w)}")
+        return out
+
+    @abstractmethod
+    def _relight(self, photo, camera, lights, *, generator=None) -> torch.Tensor: ...
+
+
+class InputRelighter(Relighter):
+    """Baseline: the input photo, unchanged, for every target light."""
+
+    name = "input"
+
+    def _relight(self, photo, camera, lights, *, generator=None):
+        return photo[:, None].expand(-1, lights.shape[1], -1, -1, -1).clone()
+
+
+class LambertianRelighter(Relighter):
+    """Analytic baseline: treat the photo as Lambertian on a flat plane and re-shade it.
+
+    With the SPEC BRDF's diffuse term only and the normal (0, 0, 1), a pixel at x lit by
+    a light at p has radiance ``rho / pi * cos(theta) * I * falloff``, with
+    ``cos(theta) = (p - x)_z / |p - x|`` and falloff ``1`` (``dgrsise``) or
+    ``1 / |p - x|^2``. Dividing the photo by its own collocated shading (light at the
+    camera c) and multiplying by the target's gives, per pixel,
+    ``relit = photo * shade(p) / shade(c)``; ``rho / pi`` and ``I`` cancel. It is exact
+    for a flat, purely diffuse material with F0 = 0 (up to the small Schlick-Fresnel
+    remainder the specular term keeps at F0 = 0), and bakes the flash highlight of any
+    other material into the relit images.
+
+    Args:
+        preset: scene conventions (plane size, falloff) of the positions.
+    """
+
+    name = "lambertian"
+
+    def __init__(self, preset: str | RenderPreset = "dgrsise"):
+        self.preset = get_preset(preset)
+
+    def _shading(self, pos: torch.Tensor, h: int, w: int) -> torch.Tensor:
+        """``cos(theta) * falloff`` per pixel for positions ``[B, K, 3]``: ``[B, K, 1, H, W]``."""
+        s = self.preset.plane_size
+        dt, dev = pos.dtype, pos.device
+        # Pixel centres on the plane (SPEC section 2): row 0 at the top (+y).
+        xs = ((torch.arange(w, dtype=dt, device=dev) + 0.5) / w - 0.5) * s
+        ys = -((torch.arange(h, dtype=dt, device=dev) + 0.5) / h - 0.5) * s
+        dx = pos[..., 0, None, None] - xs[None, None, None, :]
+        dy = pos[..., 1, None, None] - ys[None, None, :, None]
+        dz = pos[..., 2, None, None].expand(-1, -1, h, w)
+        d2 = dx * dx + dy * dy + dz * dz
+        shade = dz / d2.sqrt()
+        if self.preset.inverse_square:
+            shade = shade / d2
+        return shade[:, :, None]
+
+    def _relight(self, photo, camera, lights, *, generator=None):
+        h, w = photo.shape[-2:]
+        ratio = self._shading(lights, h, w) / self._shading(camera[:, None], h, w)
+        return photo[:, None] * ratio
+
+
+class NetworkRelighter(Relighter):
+    """A trained deterministic network (``BieronRelighter``) behind the interface:
+    eval mode, no gradients, the photo padded by edge replication to the network's size
+    multiple and cropped back, the tone-mapped prediction clamped to [0, 1] and
+    inverse-tone-mapped to linear radiance (so the output is capped at 1)."""
+
+    name = "bieron"
+
+    def __init__(self, model):
+        self.model = model.eval()
+
+    def _relight(self, photo, camera, lights, *, generator=None):
+        m = self.model.size_multiple
+        h, w = photo.shape[-2:]
+        ph, pw = (-h) % m, (-w) % m
+        dtype = next(self.model.parameters()).dtype
+        device = next(self.model.parameters()).device
+        x = photo.to(device, dtype)
+        if ph or pw:
+            # Replicated borders keep the pixel grid of the unpadded photo at the same
+            # plane positions only approximately; sizes that are multiples avoid it.
+            x = torch.nn.functional.pad(x, (0, pw, 0, ph), mode="replicate")
+        with torch.no_grad():
+            y = self.model(x, camera.to(device, dtype), lights.to(device, dtype))
+        y = y[..., :h, :w]
+        return kernels.inverse_tonemap(y.clamp(0, 1)).to(photo.device, photo.dtype)
+
+
+def _load_bieron(checkpoint: str | os.PathLike | None) -> Relighter:
+    from relight.bieron.model import BieronRelighter
+
+    folder = Path(checkpoint) if checkpoint is not None else SHIPPED_WEIGHTS / "bieron"
+    if not (folder / "config.json").is_file():
+        # A training checkpoint folder (step_NNNNNNN) holds the model under model/.
+        if (folder / "model" / "config.json").is_file():
+            folder = folder / "model"
+        else:
+            raise FileNotFoundError(f"{folder}: no BieronRelighter checkpoint (config.json) there")
+    return NetworkRelighter(BieronRelighter.from_pretrained(folder))
+
+
+def _no_checkpoint(name: str, cls: type[Relighter]) -> Callable[[str | None], Relighter]:
+    def factory(checkpoint=None) -> Relighter:
+        if checkpoint is not None:
+            raise ValueError(f"relighter {name!r} takes no checkpoint, got {checkpoint!r}")
+        return cls()
+
+    return factory
+
+
+_REGISTRY: dict[str, Callable[[str | os.PathLike | None], Relighter]] = {
+    "input": _no_checkpoint("input", InputRelighter),
+    "lambertian": _no_checkpoint("lambertian", LambertianRelighter),
+    "bieron": _load_bieron,
+}
+
+
+def register_relighter(name: str, factory: Callable[[str | os.PathLike | None], Relighter]) -> None:
+    """Add (or replace) a relighter: ``factory(checkpoint_or_None) -> Relighter``."""
+    if not name or not isinstance(name, str):
+        raise ValueError(f"relighter name must be a non-empty string, got {name!r}")
+    _REGISTRY[name] = factory
+
+
+def relighter_names(*, discover: bool = False) -> list[str]:
+    """Names ``get_relighter`` accepts, in registration order. With ``discover``, first
+    import every subpackage of ``relight`` so plugins that register on import appear; a
+    subpackage that fails to import is skipped with a warning."""
+    if discover:
+        import pkgutil
+        import warnings
+
+        import relight
+
+        for info in pkgutil.iter_modules(relight.__path__):
+            if info.ispkg:
+                try:
+                    importlib.import_module(f"relight.{info.name}")
+                except Exception as exc:  # a broken plugin must not hide the others
+                    warnings.warn(f"relight.{info.name} failed to import: {exc}", stacklevel=2)
+    return list(_REGISTRY)
+
+
+def get_relighter(name: str, checkpoint: str | os.PathLike | None = None) -> Relighter:
+    """Build the relighter ``name`` (``relighter_names()``), from ``checkpoint`` if it
+    takes one (None: its shipped weights).
+
+    Raises:
+        ValueError: unknown name. FileNotFoundError: no checkpoint where one is needed.
+    """
+    if name not in _REGISTRY and isinstance(name, str) and name.isidentifier():
+        try:
+            importlib.import_module(f"relight.{name}")  # a plugin registers itself on import
+        except ModuleNotFoundError as exc:
+            if exc.name != f"relight.{name}":
+                raise
+    if name not in _REGISTRY:
+        raise ValueError(f"unknown relighter {name!r}; known: {', '.join(_REGISTRY)}")
+    relighter = _REGISTRY[name](checkpoint)
+    relighter.name = name
+    return relighter

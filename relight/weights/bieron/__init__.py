@@ -1,0 +1,1 @@
+"""Shipped ``BieronRelighter`` checkpoint; see ``TRAINING.md`` here for how it was made."""

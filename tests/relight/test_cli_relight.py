@@ -1,0 +1,72 @@
+"""``relight generate`` and ``relight eval relight`` on tiny inputs; bad input gives one
+clear line, exit code 2, nothing written."""
+
+import json
+
+import numpy as np
+import pytest
+
+from materials.io import write_exr, write_png
+from matcap.cli import main
+
+
+@pytest.fixture()
+def photo_png(tmp_path):
+    path = tmp_path / "photo.png"
+    write_png(path, np.random.default_rng(0).random((16, 16, 3)).astype(np.float32))
+    return path
+
+
+def test_generate_writes_one_pair_per_light(tmp_path, photo_png, tiny_checkpoint):
+    out = tmp_path / "g"
+    argv = ["generate", str(photo_png), "--model", "bieron", "--checkpoint", str(tiny_checkpoint),
+            "--light", "1,1,4", "--light=-1,0,5", "--out", str(out)]
+    assert main(argv) == 0
+    info = json.loads((out / "relit.json").read_text())
+    assert len(info["lights"]) == 2
+    assert sorted(p.name for p in out.glob("relit_*")) == ["relit_00.exr", "relit_00.png", "relit_01.exr", "relit_01.png"]
+
+
+def test_generate_default_lights_from_exr(tmp_path):
+    exr = tmp_path / "photo.exr"
+    write_exr(exr, np.full((8, 8, 3), 0.3, dtype=np.float32))
+    assert main(["generate", str(exr), "--model", "lambertian", "--out", str(tmp_path / "g")]) == 0
+    assert len(list((tmp_path / "g").glob("relit_*.exr"))) == 7
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--light", "0,0,-2"], "below the material plane"),
+        (["--camera", "0,0,0"], "below the material plane"),
+        (["--model", "nope"], "unknown relighter 'nope'"),
+    ],
+)
+def test_generate_bad_input(tmp_path, photo_png, capsys, extra, message):
+    out = tmp_path / "g"
+    assert main(["generate", str(photo_png), "--model", "lambertian", *extra, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_generate_rejects_grey_and_unknown_files(tmp_path, capsys):
+    grey = tmp_path / "grey.png"
+    write_png(grey, np.zeros((8, 8, 1), dtype=np.float32))
+    assert main(["generate", str(grey), "--model", "input", "--out", str(tmp_path / "g")]) == 2
+    assert "expected 3 (RGB)" in capsys.readouterr().err
+    (tmp_path / "photo.jpg").write_bytes(b"x")
+    assert main(["generate", str(tmp_path / "photo.jpg"), "--out", str(tmp_path / "g")]) == 2
+    assert ".png (tone-mapped) or .exr" in capsys.readouterr().err
+
+
+def test_eval_relight_cli(tmp_path, tiny_checkpoint, capsys):
+    out = tmp_path / "e"
+    argv = ["eval", "relight", "--count", "1", "--size", "16", "--methods", "input,lambertian,bieron",
+            "--checkpoint", f"bieron={tiny_checkpoint}", "--out", str(out)]
+    assert main(argv) == 0
+    rows = json.loads((out / "relight_eval.json").read_text())["rows"]
+    assert [r["method"] for r in rows] == ["input", "lambertian", "bieron"]
+    assert (out / "relight_eval.md").is_file() and (out / "relight_eval.png").is_file()
+    assert main(["eval", "relight", "--count", "0", "--out", str(tmp_path / "e2")]) == 2
+    assert "count must be in 1..64" in capsys.readouterr().err

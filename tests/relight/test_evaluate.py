@@ -1,0 +1,74 @@
+"""The Table-1-style evaluation: one row per method, metrics that behave, files written."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from relight import metrics
+from relight.evaluate import EvalConfig, evaluate, format_table, load_eval_data, write_report
+from relight.interface import get_relighter
+
+
+def test_metrics_on_identical_and_different_images():
+    torch.manual_seed(0)
+    a = torch.rand(2, 3, 16, 16)
+    b = (a + 0.1).clamp(0, 1)
+    for name, (fn, _) in metrics.METRICS.items():
+        same, diff = fn(a, a), fn(b, a)
+        assert same.shape == diff.shape == (2,), name
+    assert torch.allclose(metrics.mse(a, a), torch.zeros(2, dtype=torch.float64))
+    assert (metrics.psnr(a, a) == 100).all() and (metrics.psnr(b, a) < 30).all()
+    assert torch.allclose(metrics.ssim(a, a), torch.ones(2, dtype=torch.float64), atol=1e-6)
+    assert (metrics.flip(a, a) < 1e-6).all() and (metrics.flip(b, a) > 0.01).all()
+    torch.testing.assert_close(metrics.rmse(b, a) ** 2, metrics.mse(b, a))
+
+
+def test_flip_reads_channels_last():
+    """A red/green swap must count as an error: CHW misread as HWC would mix up rows."""
+    import flip_evaluator
+
+    img = torch.zeros(1, 3, 8, 8)
+    img[:, 0] = 1.0
+    swapped = img[:, [1, 0, 2]]
+    ours = float(metrics.flip(swapped, img)[0])
+    hwc = lambda t: np.ascontiguousarray(t[0].permute(1, 2, 0).numpy())
+    direct = flip_evaluator.evaluate(hwc(img), hwc(swapped), "LDR", applyMagma=False)[1]
+    assert ours == pytest.approx(direct) and ours > 0.3
+
+
+def test_table_has_one_row_per_method(tmp_path, tiny_checkpoint):
+    cfg = EvalConfig(count=2, size=16, chunk=1)
+    methods = {n: get_relighter(n, tiny_checkpoint if n == "bieron" else None) for n in ("input", "lambertian", "bieron")}
+    result = evaluate(methods, cfg)
+    assert [r["method"] for r in result["rows"]] == ["input", "lambertian", "bieron"]
+    for r in result["rows"]:
+        assert len(r["per_image"]["PSNR"]) == 2 * 7
+        assert r["PSNR"] == pytest.approx(sum(r["per_image"]["PSNR"]) / 14)
+        assert r["PSNR_of_mean_MSE"] <= r["PSNR"] + 1e-9  # Jensen
+        assert r["seconds_per_image"] > 0
+    table = format_table(result)
+    assert len([l for l in table.splitlines() if l.startswith("| ") and "method" not in l]) == 3
+    paths = write_report(result, tmp_path, command="relight eval relight ...")
+    assert all(p.is_file() for p in paths)
+    blob = json.loads(paths[1].read_text())
+    assert len(blob["rows"]) == 3 and blob["lights"][0] == [-2.0, 2.0, 4.0]
+
+
+def test_stochastic_methods_get_a_mean_row():
+    class Noisy(get_relighter("input").__class__):
+        stochastic = True
+
+        def _relight(self, photo, camera, lights, *, generator=None):
+            out = super()._relight(photo, camera, lights)
+            return (out + 0.01 * torch.rand(out.shape, generator=generator)).clamp_min(0)
+
+    result = evaluate({"noisy": Noisy()}, EvalConfig(count=1, size=16, samples=3))
+    assert [r["method"] for r in result["rows"]] == ["noisy", "noisy (mean of 3)"]
+
+
+def test_eval_data_is_held_out_and_deterministic():
+    a, b = load_eval_data(EvalConfig(count=2, size=16)), load_eval_data(EvalConfig(count=2, size=16))
+    assert a.seeds == [10_000_000, 10_000_001]
+    assert torch.equal(a.photo, b.photo) and a.target.shape == (2, 7, 3, 16, 16)
