@@ -13,3 +13,10 @@ __all__ = [
     "make_sample_scheduler",
     "DEFAULT_STEPS",
 ]
+
+from relight.diffusion.relighter import DiffusionRelighter, load_diffusion_relighter  # noqa: E402
+from relight.interface import register_relighter  # noqa: E402
+
+# Importing this package makes the model available as get_relighter("diffusion").
+register_relighter("diffusion", load_diffusion_relighter)
+__all__ += ["DiffusionRelighter", "load_diffusion_relighter"]

@@ -144,12 +144,20 @@ class RelightDiffusion(nn.Module):
         return kernels.inverse_tonemap((x.clamp(-1, 1) + 1) / 2)
 
     # ------------------------------------------------------------------ persistence
-    def save_pretrained(self, folder: str | os.PathLike) -> None:
+    def save_pretrained(self, folder: str | os.PathLike, *, half: bool = False) -> None:
         """Write ``relight_config.json`` and ``relight.safetensors`` (all weights, the
-        decoupled-attention processors included) into ``folder`` (created)."""
+        decoupled-attention processors included) into ``folder`` (created).
+
+        ``half``: store float16 weights (halves a shipped checkpoint; loading casts them
+        back to the model's float32). Training checkpoints keep full precision.
+        """
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
-        state = {k: v.detach().contiguous() for k, v in self.state_dict().items()}
+        dtype = torch.float16 if half else None
+        state = {
+            k: (v.detach().to(dtype) if dtype is not None and v.is_floating_point() else v.detach()).contiguous()
+            for k, v in self.state_dict().items()
+        }
         save_file(state, str(folder / WEIGHTS_NAME))
         (folder / CONFIG_NAME).write_text(json.dumps(self.config.to_dict(), indent=2))
 

@@ -92,3 +92,20 @@ def test_pipeline_deterministic_and_checked(tiny_model):
         pipe(torch.rand(4, 16, 16), lights, camera, progress=False)
     with pytest.raises(ValueError, match="above the material plane"):
         pipe(photo, torch.tensor([[0.0, 0.0, -1.0]]), camera, progress=False)
+
+
+def test_registered_behind_the_common_interface(tiny_model, tmp_path):
+    from relight.interface import get_relighter
+
+    tiny_model.save_pretrained(tmp_path / "m", half=True)
+    relighter = get_relighter("diffusion", tmp_path / "m")
+    relighter.steps = 2
+    photo = torch.rand(2, 3, 16, 16)
+    camera = torch.tensor([[0.0, 0.0, 4.0]]).repeat(2, 1)
+    lights = torch.tensor([[[1.0, 1.0, 4.0], [-1.0, 2.0, 5.0], [0.0, -2.0, 6.0]]]).repeat(2, 1, 1)
+    out = relighter.relight(photo, camera, lights, generator=torch.Generator().manual_seed(0))
+    assert out.shape == (2, 3, 3, 16, 16) and getattr(relighter, "stochastic", False)
+    # float16 storage: loaded weights equal the originals rounded to half precision
+    loaded = relighter.pipeline.model
+    for (name, a), b in zip(tiny_model.state_dict().items(), loaded.state_dict().values()):
+        assert torch.equal(a.half().float(), b), name
