@@ -1,4 +1,5 @@
-"""``relight eval relight``: the Table-1-style relighting evaluation (``relight.evaluate``)."""
+"""``relight eval relight``: the Table-1-style relighting evaluation (``relight.evaluate``);
+``relight eval estimator``: the Table-2-style estimator evaluation (``estimator.evaluate``)."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ EVAL_MARKER = "relight_eval.json"
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("eval", help="evaluations (relight)", description="Evaluations of the models.")
+    p = sub.add_parser("eval", help="evaluations (relight, estimator)", description="Evaluations of the models.")
     what = p.add_subparsers(dest="what", required=True, metavar="WHAT")
     r = what.add_parser(
         "relight",
@@ -38,6 +39,32 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--seed", type=int, default=0, help="generator seed of stochastic methods")
     r.add_argument("--overwrite", action="store_true", help="replace an output folder written by this command")
     r.set_defaults(run=run)
+    e = what.add_parser(
+        "estimator",
+        help="SVBRDF estimator metrics, 1 vs 8 inputs, with and without refinement (Table 2 style)",
+        description="Held-out procedural materials, 1 input (flash) and 8 (flash + 7 renders), each "
+        "with and without refinement: map MSE and re-rendered PSNR/SSIM under 16 held-out lights, "
+        "plus diffuse error inside the highlight on the most specular third.",
+    )
+    e.add_argument("--out", required=True, type=Path, help="output folder")
+    e.add_argument("--model", type=Path, default=None, help="estimator folder (default: the shipped one)")
+    e.add_argument("--num", type=int, default=16, help="held-out materials (default %(default)s)")
+    e.add_argument("--size", type=int, default=64, help="image side (default %(default)s)")
+    e.add_argument("--refine-steps", type=int, default=100, help="refinement steps (default %(default)s)")
+    e.add_argument("--num-threads", type=int, default=None, help="torch threads")
+    e.set_defaults(run=run_estimator)
+
+
+def run_estimator(args) -> int:
+    from estimator.evaluate import cli
+    from matcap.estimate import DEFAULT_ESTIMATOR
+
+    flags = ["--model", str(args.model or DEFAULT_ESTIMATOR), "--num", str(args.num), "--size", str(args.size),
+             "--refine-steps", str(args.refine_steps), "--out", str(args.out)]
+    if args.num_threads:
+        flags += ["--num-threads", str(args.num_threads)]
+    cli(flags)
+    return 0
 
 
 def _checkpoints(items: list[str]) -> dict[str, str]:

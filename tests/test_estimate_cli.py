@@ -49,3 +49,11 @@ def test_estimate_bad_capture_is_clear(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "error" in err and str(folder) in err and "Traceback" not in err
     assert not (tmp_path / "o").exists()
+
+
+def test_eval_estimator_command(tmp_path):
+    out = tmp_path / "eval"
+    code = main(["eval", "estimator", "--model", str(_tiny_model(tmp_path)), "--num", "1", "--size", "32",
+                 "--refine-steps", "1", "--out", str(out), "--num-threads", "1"])
+    assert code == 0
+    assert any(out.glob("*.md")) and any(out.glob("*.json"))
