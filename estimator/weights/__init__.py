@@ -1,0 +1,1 @@
+"""Shipped estimator checkpoint (package data; see TRAINING.md)."""
