@@ -1,0 +1,1 @@
+"""Shipped tiny relighting diffusion checkpoint (package data; see TRAINING.md)."""
