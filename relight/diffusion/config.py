@@ -39,6 +39,11 @@ class RelightConfig:
         plane_size: scene plane side (dgrsise preset: 4), for the prior's translation.
         prompt: the fixed text prompt of the sd21 preset (SPEC section 4).
         sd21_path: local diffusers folder of Stable Diffusion 2.1 (sd21 only).
+        photo_concat: also feed the photo (model space) to the UNet and ControlNet as
+            extra input channels (tiny only: its UNet is trained from scratch, so its
+            input layer is free to change; sd21's frozen UNet keeps 4 latent channels).
+        residual: diffuse the difference between the target and the photo (model space)
+            instead of the target itself; the texture the two share needs no generating.
     """
 
     preset: str = "tiny"
@@ -53,6 +58,8 @@ class RelightConfig:
     plane_size: float = 4.0
     prompt: str = "a photo taken of the surface of an object"
     sd21_path: str | None = None
+    photo_concat: bool = True
+    residual: bool = True
     extra: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -74,6 +81,9 @@ class RelightConfig:
     @staticmethod
     def from_dict(d: dict) -> "RelightConfig":
         d = dict(d)
+        # Checkpoints written before these switches existed used neither.
+        d.setdefault("photo_concat", False)
+        d.setdefault("residual", False)
         d["block_out_channels"] = tuple(d["block_out_channels"])
         d["condition_widths"] = tuple(d["condition_widths"])
         return RelightConfig(**d)

@@ -7,9 +7,14 @@ Data flow for N target images (SPEC section 4):
         (replaces ControlNet's conditioning embedding: added to its conv_in output)
     l/v/h maps of the targets --> LightTokenEncoder --> [N, L, D] light tokens
     [null text | light tokens] --> decoupled cross-attention in UNet and ControlNet
-    x_t, t --> ControlNet residuals --> UNet --> v-prediction
+    [x_t | photo], t --> ControlNet residuals --> UNet --> v-prediction
 
-The tiny preset works in pixel space on tone-mapped images scaled to [-1, 1].
+The tiny preset works in pixel space on tone-mapped images scaled to [-1, 1]. Two
+switches of the tiny preset (both on by default, see ``RelightConfig``) depart from the
+paper's SD 2.1 set-up, whose frozen UNet can only be steered through ControlNet: the
+photo also enters the UNet as extra input channels, and the model diffuses the
+difference target - photo rather than the target. A checkpoint trained without them
+placed highlights correctly but generated its own texture (relight/DESIGN.md).
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import NamedTuple
 
 import torch
 from diffusers import ControlNetModel, DDPMScheduler, UNet2DConditionModel
@@ -27,7 +33,7 @@ import kernels
 from relight.diffusion.config import ABLATIONS, RelightConfig
 from relight.modules import ConditionEncoder, LightTokenEncoder, install_decoupled_attention
 
-__all__ = ["RelightDiffusion", "CONFIG_NAME", "WEIGHTS_NAME", "make_train_scheduler"]
+__all__ = ["RelightDiffusion", "Condition", "CONFIG_NAME", "WEIGHTS_NAME", "make_train_scheduler"]
 
 CONFIG_NAME = "relight_config.json"
 WEIGHTS_NAME = "relight.safetensors"
@@ -41,6 +47,19 @@ def make_train_scheduler() -> DDPMScheduler:
     )
 
 
+class Condition(NamedTuple):
+    """Everything ``denoise`` needs besides ``x_t`` and ``t``, computed once per target.
+
+    feats: ``[N, C, h, w]`` condition-encoder features (added to ControlNet's conv_in).
+    states: ``[N, 1 + L, D]`` null text + light tokens for the cross-attention.
+    photo_x: ``[N, 3, H, W]`` the photo in model space ([-1, 1], tone-mapped).
+    """
+
+    feats: torch.Tensor
+    states: torch.Tensor
+    photo_x: torch.Tensor
+
+
 def _tiny_unet(cfg: RelightConfig) -> UNet2DConditionModel:
     n = len(cfg.block_out_channels)
     # Self/cross-attention only below full resolution (<= 32x32 at 64 px): full-res
@@ -48,7 +67,7 @@ def _tiny_unet(cfg: RelightConfig) -> UNet2DConditionModel:
     down = ("DownBlock2D",) + ("CrossAttnDownBlock2D",) * (n - 1)
     up = ("CrossAttnUpBlock2D",) * (n - 1) + ("UpBlock2D",)
     return UNet2DConditionModel(
-        sample_size=cfg.resolution, in_channels=3, out_channels=3,
+        sample_size=cfg.resolution, in_channels=6 if cfg.photo_concat else 3, out_channels=3,
         down_block_types=down, up_block_types=up,
         block_out_channels=cfg.block_out_channels, layers_per_block=cfg.layers_per_block,
         attention_head_dim=cfg.attention_head_dim, cross_attention_dim=cfg.cross_attention_dim,
@@ -90,7 +109,7 @@ class RelightDiffusion(nn.Module):
         light: torch.Tensor,
         camera: torch.Tensor,
         permutation: torch.Tensor | None = None,
-    ) -> tuple[torch.Tensor, torch.Tensor]:
+    ) -> Condition:
         """Conditioning for N targets.
 
         Args:
@@ -99,20 +118,28 @@ class RelightDiffusion(nn.Module):
             light, camera: ``[N, 3]`` target light and camera positions.
             permutation: training-time shuffle of BCE features (``shuffle_within_groups``).
         Returns:
-            (features ``[N, C, h, w]``, encoder states ``[N, 1 + L, D]``).
+            ``Condition`` (features, encoder states, photo in model space).
         """
         offsets = kernels.highlight_offsets(camera, light, self.config.plane_size, self.feature_size())
         feats = self.condition(background, photo, offsets, permutation)
         lvh = kernels.lvh_maps(light[:, None], camera[:, None], photo.shape[-2:], plane_size=self.config.plane_size)
         tokens = self.light_tokens(lvh[:, 0])
         states = torch.cat([self.null_text.expand(tokens.shape[0], -1, -1), tokens], dim=1)
-        return feats, states
+        return Condition(feats, states, self.tonemapped(photo))
 
-    def denoise(self, x_t: torch.Tensor, t: torch.Tensor, feats: torch.Tensor, states: torch.Tensor) -> torch.Tensor:
-        """v-prediction ``[N, 3, H, W]`` for noisy targets ``x_t`` at timesteps ``t``."""
-        down, mid = self.controlnet(x_t, t, encoder_hidden_states=states, controlnet_cond=feats, return_dict=False)
+    def unet_input(self, x_t: torch.Tensor, photo_x: torch.Tensor) -> torch.Tensor:
+        """``x_t`` ``[N, 3, H, W]``, with the photo's channels appended if ``photo_concat``."""
+        return torch.cat([x_t, photo_x], dim=1) if self.config.photo_concat else x_t
+
+    def denoise(
+        self, x_t: torch.Tensor, t: torch.Tensor, feats: torch.Tensor, states: torch.Tensor, photo_x: torch.Tensor
+    ) -> torch.Tensor:
+        """v-prediction ``[N, 3, H, W]`` for noisy targets ``x_t`` at timesteps ``t``
+        (the remaining arguments: a ``Condition``, splatted)."""
+        x_in = self.unet_input(x_t, photo_x)
+        down, mid = self.controlnet(x_in, t, encoder_hidden_states=states, controlnet_cond=feats, return_dict=False)
         return self.unet(
-            x_t, t, encoder_hidden_states=states,
+            x_in, t, encoder_hidden_states=states,
             down_block_additional_residuals=down, mid_block_additional_residual=mid,
         ).sample
 
@@ -129,18 +156,24 @@ class RelightDiffusion(nn.Module):
         """Training forward: condition + denoise in one call, so a DistributedDataParallel
         wrapper sees (and synchronises) every gradient. Shapes as in ``encode_condition``
         and ``denoise``; returns the v-prediction ``[N, 3, H, W]``."""
-        feats, states = self.encode_condition(photo, background, light, camera, permutation)
-        return self.denoise(x_t, t, feats, states)
+        return self.denoise(x_t, t, *self.encode_condition(photo, background, light, camera, permutation))
 
     # ------------------------------------------------------------------ image space
     @staticmethod
-    def to_model_space(linear: torch.Tensor) -> torch.Tensor:
+    def tonemapped(linear: torch.Tensor) -> torch.Tensor:
         """Linear radiance -> tone-mapped -> [-1, 1] (the tiny preset's pixel space)."""
         return kernels.tonemap(linear) * 2 - 1
 
-    @staticmethod
-    def to_linear(x: torch.Tensor) -> torch.Tensor:
-        """Model space [-1, 1] -> linear radiance (clamped to the tone map's range)."""
+    def to_model_space(self, linear: torch.Tensor, photo_x: torch.Tensor) -> torch.Tensor:
+        """Targets ``[N, 3, H, W]`` linear -> the diffused variable ``x0``: tone-mapped in
+        [-1, 1], minus the photo ``photo_x`` (model space) if ``residual``."""
+        x = self.tonemapped(linear)
+        return x - photo_x if self.config.residual else x
+
+    def to_linear(self, x: torch.Tensor, photo_x: torch.Tensor) -> torch.Tensor:
+        """Inverse of ``to_model_space``: linear radiance, clamped to the tone map's range."""
+        if self.config.residual:
+            x = x + photo_x
         return kernels.inverse_tonemap((x.clamp(-1, 1) + 1) / 2)
 
     # ------------------------------------------------------------------ persistence

@@ -28,7 +28,8 @@ def diffusion_loss(
     targets = images.flatten(0, 1)
     photo = images[:, :1].expand(-1, v, -1, -1, -1).flatten(0, 1)
     perm = shuffle_within_groups(b * v, v, generator).to(images.device)
-    x0 = RelightDiffusion.to_model_space(targets)
+    unwrapped = getattr(model, "module", model)  # DistributedDataParallel keeps the model in .module
+    x0 = unwrapped.to_model_space(targets, RelightDiffusion.tonemapped(photo))
     noise = torch.randn(x0.shape, generator=generator).to(x0.device)
     t = torch.randint(0, scheduler.config.num_train_timesteps, (x0.shape[0],), generator=generator).to(x0.device)
     x_t = scheduler.add_noise(x0, noise, t)

@@ -81,14 +81,14 @@ class RelightPipeline:
         photos = photo.to(device)[None].expand(n, -1, -1, -1)
         target_lights = lights.to(device).repeat(num_samples, 1)
         cameras = camera.to(device)[None].expand(n, 3)
-        feats, states = model.encode_condition(photos, photos, target_lights, cameras)
+        cond = model.encode_condition(photos, photos, target_lights, cameras)
         # 3. Start from noise.
         x = torch.randn((n, 3, res, res), generator=generator, device="cpu").to(device)
         # 4. Denoise.
         self.scheduler.set_timesteps(num_inference_steps, device=device)
         for t in tqdm(self.scheduler.timesteps, desc="relight", disable=not progress, leave=False):
-            v = model.denoise(x, t.expand(n), feats, states)
+            v = model.denoise(x, t.expand(n), *cond)
             x = self.scheduler.step(v, t, x).prev_sample
         # 5. Back to linear radiance; average the samples of each target.
-        linear = model.to_linear(x).view(num_samples, k, 3, res, res)
+        linear = model.to_linear(x, cond.photo_x).view(num_samples, k, 3, res, res)
         return linear.mean(0)

@@ -42,6 +42,7 @@ class TrainConfig:
     seed: int = 0
     ablation: str = "full"
     ckpt_every: int = 50
+    keep_every: int = 0  # also keep a copy of the checkpoint every N steps (0 = none), e.g. for same-budget ablations
     threads: int = 0  # torch threads; 0 = leave torch's default
 
 
@@ -124,6 +125,10 @@ def main(cfg: TrainConfig) -> Path:
         if step % cfg.ckpt_every == 0 and accel.is_main_process:
             _save(ckpt, model, optimizer, step, history, accel)
             _plot(history, Path(cfg.ckpt_dir) / "loss.png")
+        if cfg.keep_every and step % cfg.keep_every == 0 and accel.is_main_process:
+            kept = Path(cfg.ckpt_dir) / f"step_{step:06d}"
+            shutil.rmtree(kept, ignore_errors=True)
+            accel.unwrap_model(model).save_pretrained(kept / "model")
     if accel.is_main_process:
         _save(ckpt, model, optimizer, step, history, accel)
         _plot(history, Path(cfg.ckpt_dir) / "loss.png")

@@ -23,9 +23,9 @@ def _inputs(model, n=3, seed=0):
 def test_zero_initialised_injection_leaves_unet_unchanged(tiny_model):
     photo, light, camera, x, t = _inputs(tiny_model)
     with torch.no_grad():
-        feats, states = tiny_model.encode_condition(photo, photo, light, camera)
-        with_control = tiny_model.denoise(x, t, feats, states)
-        plain = tiny_model.unet(x, t, encoder_hidden_states=states).sample
+        cond = tiny_model.encode_condition(photo, photo, light, camera)
+        with_control = tiny_model.denoise(x, t, *cond)
+        plain = tiny_model.unet(tiny_model.unet_input(x, cond.photo_x), t, encoder_hidden_states=cond.states).sample
     assert torch.equal(with_control, plain)
 
 
@@ -34,14 +34,15 @@ def test_light_tokens_enter_once_value_projection_moves(tiny_model):
     other = light.clone()
     other[:, 0] = -3.0
     with torch.no_grad():
-        f1, s1 = tiny_model.encode_condition(photo, photo, light, camera)
-        _, s2 = tiny_model.encode_condition(photo, photo, other, camera)
-        assert torch.equal(tiny_model.unet(x, t, encoder_hidden_states=s1).sample,
-                           tiny_model.unet(x, t, encoder_hidden_states=s2).sample)
+        _, s1, photo_x = tiny_model.encode_condition(photo, photo, light, camera)
+        _, s2, _ = tiny_model.encode_condition(photo, photo, other, camera)
+        x_in = tiny_model.unet_input(x, photo_x)
+        assert torch.equal(tiny_model.unet(x_in, t, encoder_hidden_states=s1).sample,
+                           tiny_model.unet(x_in, t, encoder_hidden_states=s2).sample)
         for p in decoupled_processors(tiny_model.unet):
             torch.nn.init.normal_(p.to_v_ip.weight, std=0.5)
-        assert not torch.allclose(tiny_model.unet(x, t, encoder_hidden_states=s1).sample,
-                                  tiny_model.unet(x, t, encoder_hidden_states=s2).sample)
+        assert not torch.allclose(tiny_model.unet(x_in, t, encoder_hidden_states=s1).sample,
+                                  tiny_model.unet(x_in, t, encoder_hidden_states=s2).sample)
 
 
 def test_save_load_round_trip(tiny_model, tmp_path):
@@ -109,3 +110,30 @@ def test_registered_behind_the_common_interface(tiny_model, tmp_path):
     loaded = relighter.pipeline.model
     for (name, a), b in zip(tiny_model.state_dict().items(), loaded.state_dict().values()):
         assert torch.equal(a.half().float(), b), name
+
+
+def test_residual_space_round_trips_and_photo_enters_the_unet(tiny_model):
+    photo, light, camera, x, t = _inputs(tiny_model)
+    target = torch.rand_like(photo) * 0.8  # inside the tone map's unclamped range
+    photo_x = RelightDiffusion.tonemapped(photo)
+    x0 = tiny_model.to_model_space(target, photo_x)
+    assert torch.allclose(x0, RelightDiffusion.tonemapped(target) - photo_x)
+    assert torch.allclose(tiny_model.to_linear(x0, photo_x), target, atol=1e-5)
+    assert tiny_model.unet.conv_in.in_channels == 6
+    with torch.no_grad():
+        a = tiny_model.denoise(x, t, *tiny_model.encode_condition(photo, photo, light, camera))
+        b = tiny_model.denoise(x, t, *tiny_model.encode_condition(1 - photo, 1 - photo, light, camera))
+    assert not torch.allclose(a, b)  # the photo reaches the output at initialisation
+
+
+def test_checkpoints_without_the_switches_load_as_plain():
+    from relight.diffusion import RelightConfig
+
+    legacy = RelightConfig(photo_concat=False, residual=False).to_dict()
+    del legacy["photo_concat"], legacy["residual"]
+    cfg = RelightConfig.from_dict(legacy)
+    assert not cfg.photo_concat and not cfg.residual
+    model = RelightDiffusion(cfg)
+    assert model.unet.conv_in.in_channels == 3
+    target = torch.rand(1, 3, 8, 8) * 0.8
+    assert torch.allclose(model.to_linear(model.to_model_space(target, None), None), target, atol=1e-5)
