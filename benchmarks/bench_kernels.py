@@ -307,6 +307,17 @@ def compile_worker(modules: list[str]) -> dict:
 
             def call(args=args):
                 kernels.render(*args)
+        elif op == "grad":  # the hand-written map gradients (render backward, maps only)
+            n = torch.zeros(1, 3, 4, 4, dtype=dtype)
+            n[:, 2] = 1
+            maps = [torch.rand(1, 3, 4, 4, dtype=dtype), n, torch.full((1, 1, 4, 4), 0.5, dtype=dtype),
+                    torch.rand(1, 3, 4, 4, dtype=dtype)]
+            maps = [m.requires_grad_() for m in maps]
+            light, camera = torch.tensor([[1.0, 0.0, 4.0]], dtype=dtype), torch.tensor([0.0, 0.0, 4.0], dtype=dtype)
+            out = kernels.render(*maps, light, camera)  # forward module compiled above
+
+            def call(out=out, maps=maps):
+                torch.autograd.grad(out, maps, torch.ones_like(out), retain_graph=True)
         else:  # the image module: translate, the row losses and the fused rendering loss
             f, o = torch.rand(1, 2, 4, 4, dtype=dtype), torch.tensor([[0.5, 0.25]], dtype=dtype)
 
@@ -450,7 +461,9 @@ def main(argv: list[str] | None = None) -> dict:
     report["meta"]["loadavg_after"] = os.getloadavg()
 
     if not args.no_compile:
-        modules = ["render_f32", "image_f32"] + ([] if args.quick else ["render_f64", "image_f64"])
+        modules = ["render_f32", "grad_f32", "image_f32"]
+        if not args.quick:
+            modules += ["render_f64", "grad_f64", "image_f64"]
         with tempfile.TemporaryDirectory(prefix="dgrsise-warp-cache-") as cache:
             env = {CACHE_ENV: cache}
             cold = _spawn(["--compile-worker", json.dumps(modules)], env, args.threads)

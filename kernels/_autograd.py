@@ -2,7 +2,9 @@
 
 Both shading kernels (``render`` and the fused rendering loss) share one argument
 prefix (maps, light, camera, scene constants, chunk offsets), one chunked launcher and
-one backward. Warp traps handled here (Warp's torch interop notes): the output adjoint
+one backward. The backward has two paths: the hand-written map gradients
+(``kernels.brdf_grad``, fast, no atomics) when no position needs a gradient, else
+Warp's generated adjoint, which also yields light and camera gradients. Warp traps handled here (Warp's torch interop notes): the output adjoint
 handed to Warp is always a private copy (Warp consumes it), gradients returned to torch
 are fresh buffers, and CUDA launches run on torch's current stream.
 """
@@ -14,6 +16,7 @@ from dataclasses import dataclass
 import torch
 import warp as wp
 
+from kernels._grad_kernels import build_grad_kernels
 from kernels._image_kernels import build_image_kernels
 from kernels._render_kernels import build_render_kernels
 from kernels._warp import chunk_bounds, parallel_chunks, preload, warp_device, warp_scalar, wp_array
@@ -90,6 +93,38 @@ def _launch_shading(name, maps, light, camera, scene, extra, output, *, grads=No
     parallel_chunks(chunks, launch)
 
 
+def _maps_backward(name, maps, light, camera, scene, extra, cotangent):
+    """Hand-written gradients of the four maps only (light and camera get none).
+
+    ``cotangent``: ``[B*K, 3, H, W]`` for "render", ``[B, H, W]`` for "loss"; ``extra``:
+    the forward kernel's trailing inputs. Returns fresh gradient tensors.
+    """
+    b, _, h, w = maps[0].shape
+    device = maps[0].device
+    F = warp_scalar(maps[0].dtype)
+    V3 = build_render_kernels(F).V3
+    kernel = getattr(build_grad_kernels(F), name)
+    grads = [torch.empty_like(t) for t in maps]
+    axis, chunks = _shading_chunks(b, h, device)
+    to_wp = lambda x: wp_array(x) if isinstance(x, torch.Tensor) else x  # noqa: E731
+    head = [*(wp_array(t) for t in maps), wp_array(light), wp_array(camera)]
+    consts = [V3(*scene.intensity), F(scene.plane_size), int(scene.inverse_square), F(scene.roughness_floor)]
+    tail = [*(to_wp(x) for x in extra), wp_array(cotangent.contiguous())]
+    outs = [wp_array(g) for g in grads]
+
+    def launch(_index: int, start: int, count: int) -> None:
+        offsets = [start, 0] if axis == "batch" else [0, start]
+        dim = (count, h, w) if axis == "batch" else (b, count, w)
+        wp.launch(
+            kernel, dim=dim, inputs=[*head, *consts, *offsets, *tail], outputs=outs,
+            device=warp_device(device), stream=_stream(device),
+        )
+
+    preload(kernel, warp_device(device))
+    parallel_chunks(chunks, launch)
+    return grads
+
+
 def _shading_backward(name, maps, light, camera, scene, extra, extra_adj, output, grad_output):
     grads = [torch.zeros_like(t) for t in maps]
     axis, chunks = _shading_chunks(maps[0].shape[0], maps[0].shape[2], maps[0].device)
@@ -129,6 +164,9 @@ class RenderFunction(torch.autograd.Function):
     def backward(ctx, grad_out):
         *maps, light, camera, out = ctx.saved_tensors
         h, w = out.shape[-2:]
+        if not (ctx.needs_input_grad[4] or ctx.needs_input_grad[5]):
+            grads = _maps_backward("render", maps, light, camera, ctx.scene, [], grad_out.reshape(-1, 3, h, w))
+            return (*grads, None, None, None)
         grads, g_light, g_camera = _shading_backward(
             "render", maps, light, camera, ctx.scene, [], [], out.view(-1, 3, h, w), grad_out.reshape(-1, 3, h, w)
         )
@@ -156,6 +194,9 @@ class RenderLogL1Function(torch.autograd.Function):
     def backward(ctx, grad_partial):
         *maps, light, camera, target, partial = ctx.saved_tensors
         F = warp_scalar(partial.dtype)
+        if not (ctx.needs_input_grad[4] or ctx.needs_input_grad[5]):
+            grads = _maps_backward("loss", maps, light, camera, ctx.scene, [target, F(ctx.eps)], grad_partial)
+            return (*grads, None, None, None, None, None)
         # The target takes no gradient; Warp still wants a buffer for its adjoint.
         grads, g_light, g_camera = _shading_backward(
             "loss", maps, light, camera, ctx.scene, [target, F(ctx.eps)],

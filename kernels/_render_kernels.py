@@ -62,7 +62,7 @@ def build_render_kernels(F) -> SimpleNamespace:
             out[row, 1, i, j] = radiance[1]
             out[row, 2, i, j] = radiance[2]
 
-    @wp.kernel(module=module)
+    @wp.kernel(module=module, enable_backward=False)  # geometry only: never differentiated
     def lvh_kernel(
         light: wp.array3d(dtype=F),
         camera: wp.array3d(dtype=F),

@@ -51,17 +51,20 @@ def loss_scene(make_maps, make_positions):
 
 
 # --------------------------------------------------------------------------- rendering loss
+@pytest.mark.parametrize("positions_grad", [True, False], ids=["adjoint", "maps-only"])
 @pytest.mark.parametrize("b", [1, 3])
 @pytest.mark.parametrize("preset", ["dgrsise", "materialgan"])
-def test_rendering_loss_matches_reference(preset, b, dtype, device, loss_scene, assert_close_to_max,
-                                          assert_grad_alive):
+def test_rendering_loss_matches_reference(preset, b, positions_grad, dtype, device, loss_scene,
+                                          assert_close_to_max, assert_grad_alive):
     maps, light, camera, target = loss_scene(b, 7, 13, 4, dtype=dtype, device=device)
+    if not positions_grad:
+        light, camera = light.detach(), camera.detach()
     kw = {"preset": preset, "plane_size": 4.0}
     loss = kernels.rendering_loss(*maps, target, light, camera, **kw)
     ref = reference.rendering_loss(*maps, target, light, camera, **kw)
     assert loss.shape == () and loss.dtype == dtype
     assert_close_to_max(loss, ref, LOSS_RTOL[dtype], "loss")
-    inputs = [*maps, light, camera]
+    inputs = [*maps, light, camera] if positions_grad else list(maps)
     for name, g, r in zip(NAMES, torch.autograd.grad(loss, inputs), torch.autograd.grad(ref, inputs)):
         assert_close_to_max(g, r, VJP_RTOL[dtype], name)
         assert_grad_alive(g, r, name)
@@ -75,13 +78,15 @@ def test_rendering_loss_equals_log_l1_of_render(loss_scene, assert_close_to_max)
     assert_close_to_max(fused, unfused, LOSS_RTOL_F64)
 
 
-def test_rendering_loss_gradcheck_float64(loss_scene):
+@pytest.mark.parametrize("positions_grad", [True, False], ids=["adjoint", "maps-only"])
+def test_rendering_loss_gradcheck_float64(positions_grad, loss_scene):
     maps, light, camera, target = loss_scene(2, 3, 4, 2, dtype=torch.float64, seed=20)
-
-    def fn(*args):
-        return kernels.rendering_loss(*args[:4], target, *args[4:])
-
-    assert torch.autograd.gradcheck(fn, (*maps, light, camera), eps=1e-6, atol=1e-7, rtol=1e-5)
+    if positions_grad:
+        fn, inputs = (lambda *a: kernels.rendering_loss(*a[:4], target, *a[4:])), (*maps, light, camera)
+    else:
+        light, camera = light.detach(), camera.detach()
+        fn, inputs = (lambda *a: kernels.rendering_loss(*a, target, light, camera)), tuple(maps)
+    assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-7, rtol=1e-5)
 
 
 # --------------------------------------------------------------------------- image losses

@@ -1,0 +1,153 @@
+"""Warp launch shells of the hand-written map gradients (``kernels.brdf_grad``).
+
+Same launch geometry and argument prefix as the forward shading kernels (one thread per
+pixel (b, i, j), K lights in a loop, ``b_offset`` / ``row_offset`` chunks), so
+``kernels._autograd`` launches them with the same chunked launcher. Every thread owns
+its pixel of the four gradient maps: plain writes, no atomics. They are never
+differentiated, so Warp generates no adjoint for them (less to compile).
+"""
+
+from functools import cache
+from types import SimpleNamespace
+
+import warp as wp
+
+from kernels.brdf import build_brdf
+from kernels.brdf_grad import build_brdf_grad
+
+__all__ = ["build_grad_kernels"]
+
+
+@cache
+def build_grad_kernels(F) -> SimpleNamespace:
+    """Map-gradient kernels for scalar type ``F`` (wp.float32 or wp.float64)."""
+    brdf = build_brdf(F)
+    grad = build_brdf_grad(F)
+    V3 = brdf.V3
+    module = f"dgrsise_grad_{wp.types.type_repr(F)}"
+
+    @wp.func
+    def store_grads(
+        b: int, i: int, j: int, m: V3, g_rho: V3, g_f0: V3, g_rough: F, g_n: V3,
+        g_diffuse: wp.array4d(dtype=F), g_normal: wp.array4d(dtype=F),
+        g_roughness: wp.array4d(dtype=F), g_specular: wp.array4d(dtype=F),
+    ):
+        g_m = grad.normalize_grad(m, g_n)
+        for c in range(3):
+            g_diffuse[b, c, i, j] = g_rho[c]
+            g_specular[b, c, i, j] = g_f0[c]
+            g_normal[b, c, i, j] = g_m[c]
+        g_roughness[b, 0, i, j] = g_rough
+
+    @wp.kernel(module=module, enable_backward=False)
+    def render_maps_grad(
+        diffuse: wp.array4d(dtype=F),
+        normal: wp.array4d(dtype=F),
+        roughness: wp.array4d(dtype=F),
+        specular: wp.array4d(dtype=F),
+        light: wp.array3d(dtype=F),
+        camera: wp.array3d(dtype=F),
+        intensity: V3,
+        plane_size: F,
+        inverse_square: int,
+        rough_floor: F,
+        b_offset: int,
+        row_offset: int,
+        grad_out: wp.array4d(dtype=F),
+        g_diffuse: wp.array4d(dtype=F),
+        g_normal: wp.array4d(dtype=F),
+        g_roughness: wp.array4d(dtype=F),
+        g_specular: wp.array4d(dtype=F),
+    ):
+        # grad_out: [B*K, 3, H, W] cotangent of the rendering.
+        bb, ii, j = wp.tid()
+        b = bb + b_offset
+        i = ii + row_offset
+        num_lights = light.shape[1]
+        p = brdf.plane_point(i, j, diffuse.shape[2], diffuse.shape[3], plane_size)
+        rho_d = brdf.load_rgb(diffuse, b, i, j)
+        f0 = brdf.load_rgb(specular, b, i, j)
+        m = brdf.load_rgb(normal, b, i, j)
+        n = brdf.safe_normalize(m)
+        rough = roughness[b, 0, i, j]
+        zero = V3(F(0.0), F(0.0), F(0.0))
+        g_rho = zero
+        g_f0 = zero
+        g_n = zero
+        g_rough = F(0.0)
+        for k in range(num_lights):
+            row = b * num_lights + k
+            u = brdf.load_rgb(grad_out, row, i, j)
+            radiance, a_rho, a_f0, a_rough, a_n = grad.radiance_and_map_grads(
+                p, brdf.load_position(light, b, k), brdf.load_position(camera, b, k),
+                n, rho_d, f0, rough, intensity, inverse_square, rough_floor, u,
+            )
+            g_rho += a_rho
+            g_f0 += a_f0
+            g_rough += a_rough
+            g_n += a_n
+        store_grads(b, i, j, m, g_rho, g_f0, g_rough, g_n, g_diffuse, g_normal, g_roughness, g_specular)
+
+    @wp.kernel(module=module, enable_backward=False)
+    def render_log_l1_maps_grad(
+        diffuse: wp.array4d(dtype=F),
+        normal: wp.array4d(dtype=F),
+        roughness: wp.array4d(dtype=F),
+        specular: wp.array4d(dtype=F),
+        light: wp.array3d(dtype=F),
+        camera: wp.array3d(dtype=F),
+        intensity: V3,
+        plane_size: F,
+        inverse_square: int,
+        rough_floor: F,
+        b_offset: int,
+        row_offset: int,
+        target: wp.array4d(dtype=F),
+        eps: F,
+        grad_partial: wp.array3d(dtype=F),
+        g_diffuse: wp.array4d(dtype=F),
+        g_normal: wp.array4d(dtype=F),
+        g_roughness: wp.array4d(dtype=F),
+        g_specular: wp.array4d(dtype=F),
+    ):
+        # grad_partial: [B, H, W] cotangent of the per-pixel loss sums. The cotangent of
+        # radiance x is g sign(log(x + eps) - log(y + eps)) / (x + eps); sign(0) = 0 as
+        # in torch. The radiance is recomputed, not stored (the forward pass is fused).
+        bb, ii, j = wp.tid()
+        b = bb + b_offset
+        i = ii + row_offset
+        num_lights = light.shape[1]
+        p = brdf.plane_point(i, j, diffuse.shape[2], diffuse.shape[3], plane_size)
+        rho_d = brdf.load_rgb(diffuse, b, i, j)
+        f0 = brdf.load_rgb(specular, b, i, j)
+        m = brdf.load_rgb(normal, b, i, j)
+        n = brdf.safe_normalize(m)
+        rough = roughness[b, 0, i, j]
+        g = grad_partial[b, i, j]
+        zero = V3(F(0.0), F(0.0), F(0.0))
+        g_rho = zero
+        g_f0 = zero
+        g_n = zero
+        g_rough = F(0.0)
+        for k in range(num_lights):
+            row = b * num_lights + k
+            light_pos = brdf.load_position(light, b, k)
+            camera_pos = brdf.load_position(camera, b, k)
+            x = brdf.point_light_radiance(
+                p, light_pos, camera_pos, n, rho_d, f0, rough, intensity, inverse_square, rough_floor,
+            )
+            u = zero
+            for c in range(3):
+                diff = wp.log(x[c] + eps) - wp.log(target[row, c, i, j] + eps)
+                sign = wp.where(diff > F(0.0), F(1.0), wp.where(diff < F(0.0), F(-1.0), F(0.0)))
+                u[c] = g * sign / (x[c] + eps)
+            radiance, a_rho, a_f0, a_rough, a_n = grad.radiance_and_map_grads(
+                p, light_pos, camera_pos, n, rho_d, f0, rough, intensity, inverse_square, rough_floor, u,
+            )
+            g_rho += a_rho
+            g_f0 += a_f0
+            g_rough += a_rough
+            g_n += a_n
+        store_grads(b, i, j, m, g_rho, g_f0, g_rough, g_n, g_diffuse, g_normal, g_roughness, g_specular)
+
+    return SimpleNamespace(render=render_maps_grad, loss=render_log_l1_maps_grad)

@@ -1,0 +1,109 @@
+"""Hand-written adjoint of ``brdf.point_light_radiance`` with respect to the maps.
+
+Warp's generated adjoint of the render kernel replays the K-light loop, keeps every
+intermediate and accumulates the light/camera gradients with one atomic add per pixel
+and light; on the CPU that made forward+backward barely faster than eager torch. Most
+callers (training, refinement) want gradients to the four maps only: this function gives
+them in closed form, one thread per pixel, no atomics. The generated adjoint stays the
+path whenever light or camera positions need gradients (``kernels._autograd``).
+
+Derivatives (notation of ``kernels.brdf``; u = dL/d radiance, s = 1/dist^2 or 1,
+us = u * intensity * s, D v = D * vis, w = 2^((a v.h + b) v.h)):
+
+    radiance = (rho_d (1 - F0) / pi + F D v) (n.l) intensity s,   F = F0 + (1 - F0) w
+    dL/d rho_d = us (1 - F0) (n.l) / pi
+    dL/d F0    = us (-rho_d / pi + (1 - w) D v) (n.l)
+    dL/d(D v)  = (n.l) sum_c us_c F_c
+    dD/d(n.h)  = -4 a2 (n.h) (a2 - 1) / (pi d^3),  dD/d alpha = 2 alpha (d - 2 a2 (n.h)^2) / (pi d^3)
+    dvis/d(n.l) = -vis (1 - k) / A,  dvis/dk = -vis ((1 - n.l) / A + (1 - n.v) / B)
+    with d = (n.h)^2 (a2 - 1) + 1, A = (n.l)(1 - k) + k, B = (n.v)(1 - k) + k, k = alpha / 2.
+
+Clamped dot products and the roughness floor pass gradient where the input is at or
+above the bound, as torch's ``clamp_min`` does (``kernels.reference``).
+"""
+
+from functools import cache
+from types import SimpleNamespace
+import warp as wp
+
+from kernels.brdf import FRESNEL_A, FRESNEL_B, INV_PI, NORMALIZE_EPS, PI, build_brdf
+
+__all__ = ["build_brdf_grad"]
+
+
+@cache
+def build_brdf_grad(F) -> SimpleNamespace:
+    """Warp functions of the map gradients for scalar type ``F``."""
+    brdf = build_brdf(F)
+    V3 = brdf.V3
+
+    @wp.func
+    def pass_mask(x: F):
+        # 1 where clamp_min(x, 0) passes gradient (x >= 0), else 0.
+        return wp.where(x >= F(0.0), F(1.0), F(0.0))
+
+    @wp.func
+    def radiance_and_map_grads(
+        p: V3, light_pos: V3, camera_pos: V3, n: V3, rho_d: V3, f0: V3, rough: F,
+        intensity: V3, inverse_square: int, rough_floor: F, u: V3,
+    ):
+        """For unit normal ``n`` and cotangent ``u`` of one light's radiance: returns
+        (radiance, dL/d rho_d, dL/d F0, dL/d roughness, dL/d n) (n: the unit normal)."""
+        to_light = light_pos - p
+        dist2 = wp.dot(to_light, to_light) + F(NORMALIZE_EPS)
+        l = to_light / wp.sqrt(dist2)
+        v = brdf.safe_normalize(camera_pos - p)
+        h = brdf.safe_normalize(l + v)
+        ndl_raw = wp.dot(n, l)
+        ndv_raw = wp.dot(n, v)
+        ndh_raw = wp.dot(n, h)
+        ndl = wp.max(ndl_raw, F(0.0))
+        ndv = wp.max(ndv_raw, F(0.0))
+        ndh = wp.max(ndh_raw, F(0.0))
+        vdh = wp.max(wp.dot(v, h), F(0.0))
+        r = wp.max(rough, rough_floor)
+        alpha = r * r
+        k = alpha * F(0.5)
+        a2 = alpha * alpha
+        dd = ndh * ndh * (a2 - F(1.0)) + F(1.0)
+        d = a2 / (F(PI) * dd * dd)
+        w = wp.pow(F(2.0), (F(FRESNEL_A) * vdh + F(FRESNEL_B)) * vdh)
+        one = V3(F(1.0), F(1.0), F(1.0))
+        fr = f0 + (one - f0) * w
+        big_a = ndl * (F(1.0) - k) + k
+        big_b = ndv * (F(1.0) - k) + k
+        vis = F(1.0) / big_a * (F(1.0) / big_b) * F(0.25)
+        dv = d * vis
+        diffuse = wp.cw_mul(rho_d, one - f0) * F(INV_PI)
+        # Same expression order as brdf.point_light_radiance: the fused loss's gradient
+        # sees the very radiance its forward pass saw.
+        radiance = wp.cw_mul((diffuse + fr * dv) * ndl, intensity)
+        sc = F(1.0)
+        if inverse_square != 0:
+            radiance = radiance / dist2
+            sc = F(1.0) / dist2
+        us = wp.cw_mul(u, intensity) * sc
+        g_rho = wp.cw_mul(us, one - f0) * (ndl * F(INV_PI))
+        g_f0 = wp.cw_mul(us, rho_d * F(-INV_PI) + (one - V3(w, w, w)) * dv) * ndl
+        g_dv = ndl * wp.dot(us, fr)
+        g_d = g_dv * vis
+        g_vis = g_dv * d
+        g_ndl = (wp.dot(us, diffuse + fr * dv) - g_vis * vis * (F(1.0) - k) / big_a) * pass_mask(ndl_raw)
+        g_ndv = -g_vis * vis * (F(1.0) - k) / big_b * pass_mask(ndv_raw)
+        dd3 = F(PI) * dd * dd * dd
+        g_ndh = g_d * (F(-4.0) * a2 * ndh * (a2 - F(1.0)) / dd3) * pass_mask(ndh_raw)
+        g_alpha = g_d * F(2.0) * alpha * (dd - F(2.0) * a2 * ndh * ndh) / dd3
+        g_alpha += g_vis * (-vis) * ((F(1.0) - ndl) / big_a + (F(1.0) - ndv) / big_b) * F(0.5)
+        g_rough = g_alpha * F(2.0) * r * wp.where(rough >= rough_floor, F(1.0), F(0.0))
+        # (v.h, hence w, depends on the positions only: no map gradient flows through it.)
+        g_n = l * g_ndl + v * g_ndv + h * g_ndh
+        return radiance, g_rho, g_f0, g_rough, g_n
+
+    @wp.func
+    def normalize_grad(m: V3, g_n: V3):
+        """Gradient w.r.t. the raw normal m of a gradient w.r.t. n = m / sqrt(m.m + eps)."""
+        r = wp.sqrt(wp.dot(m, m) + F(NORMALIZE_EPS))
+        n = m / r
+        return (g_n - n * wp.dot(n, g_n)) / r
+
+    return SimpleNamespace(V3=V3, radiance_and_map_grads=radiance_and_map_grads, normalize_grad=normalize_grad)
