@@ -123,7 +123,7 @@ def evaluate(relighters: dict[str, Relighter], cfg: EvalConfig = EvalConfig(), d
     """
     data = load_eval_data(cfg) if data is None else data
     n, k = data.target.shape[:2]
-    rows, images = [], {}
+    rows, images, spread = [], {}, {}
     for name, relighter in relighters.items():
         runs = cfg.samples if getattr(relighter, "stochastic", False) else 1
         preds, seconds = [], 0.0
@@ -133,7 +133,9 @@ def evaluate(relighters: dict[str, Relighter], cfg: EvalConfig = EvalConfig(), d
             seconds += sec
         variants = [(name, preds[0])]
         if runs > 1:
-            variants.append((f"{name} (mean of {runs})", torch.stack(preds).mean(0)))
+            mean_name = f"{name} (mean of {runs})"
+            variants.append((mean_name, torch.stack(preds).mean(0)))
+            spread[mean_name] = sample_spread(preds)
         for row_name, pred in variants:
             per_image = _score(pred, data.target)
             row = {"method": row_name}
@@ -144,6 +146,8 @@ def evaluate(relighters: dict[str, Relighter], cfg: EvalConfig = EvalConfig(), d
             row["LPIPS"] = None
             row["seconds_per_image"] = seconds / (runs * n * k)
             row["per_image"] = per_image
+            if row_name in spread:
+                row["std_error_corr"] = std_error_correlation(spread[row_name], pred, data.target)
             rows.append(row)
             images[row_name] = pred
     return {
@@ -154,8 +158,32 @@ def evaluate(relighters: dict[str, Relighter], cfg: EvalConfig = EvalConfig(), d
         "lpips": "n/a (no LPIPS weights present locally)" if not metrics.lpips_available() else "not computed",
         "rows": rows,
         "images": images,
+        "spread": spread,
         "data": data,
     }
+
+
+def sample_spread(preds: list[torch.Tensor]) -> torch.Tensor:
+    """Per-pixel standard deviation across samples: a confidence map.
+
+    Args:
+        preds: S >= 2 predictions ``[N, K, 3, H, W]`` (linear) of one stochastic method.
+    Returns:
+        ``[N, K, H, W]``: std over samples of the tone-mapped images, averaged over RGB.
+    """
+    tm = kernels.tonemap(torch.stack(preds))
+    return tm.std(dim=0).mean(dim=2)
+
+
+def std_error_correlation(std: torch.Tensor, pred: torch.Tensor, target: torch.Tensor) -> float:
+    """Pearson correlation, over all pixels, between the sample std ``[N, K, H, W]`` and
+    the absolute tone-mapped error of ``pred`` (``[N, K, 3, H, W]``, RGB-averaged): how
+    far the spread can stand in for the (unknown) error."""
+    err = (kernels.tonemap(pred) - kernels.tonemap(target)).abs().mean(dim=2)
+    x, y = std.flatten().double(), err.flatten().double()
+    x, y = x - x.mean(), y - y.mean()
+    denom = float(x.norm() * y.norm())
+    return float((x * y).sum()) / denom if denom > 0 else 0.0
 
 
 def format_table(result: dict) -> str:
@@ -206,6 +234,41 @@ def _picture(result: dict, path: Path, materials: int = 4, lights: tuple[int, ..
     plt.close(fig)
 
 
+def _confidence_picture(result: dict, name: str, path: Path, materials: int = 4, light: int = 0) -> None:
+    """Rows: held-out materials (the first ``materials``); columns: photo, ground truth,
+    mean of the samples, |error| of the mean, per-pixel std across samples (same scale)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    data: EvalData = result["data"]
+    mean, std = result["images"][name], result["spread"][name]
+    err = (kernels.tonemap(mean) - kernels.tonemap(data.target)).abs().mean(dim=2)
+    m_count = min(materials, mean.shape[0])
+    vmax = float(torch.quantile(torch.cat([err[:m_count, light].flatten(), std[:m_count, light].flatten()]), 0.99))
+    cols = ["input (flash)", "ground truth", name, "|error| of the mean", "std across samples"]
+    fig, axes = plt.subplots(m_count, len(cols), figsize=(1.8 * len(cols), 1.8 * m_count), dpi=100, squeeze=False)
+    for r in range(m_count):
+        cells = [data.photo[r], data.target[r, light], mean[r, light]]
+        for c in range(len(cols)):
+            ax = axes[r, c]
+            if c < 3:
+                ax.imshow(kernels.tonemap(cells[c]).permute(1, 2, 0).clamp(0, 1).numpy(), interpolation="nearest")
+            else:
+                ax.imshow((err if c == 3 else std)[r, light].numpy(), cmap="magma", vmin=0, vmax=max(vmax, 1e-6),
+                          interpolation="nearest")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if r == 0:
+                ax.set_title(cols[c], fontsize=7)
+            if c == 0:
+                ax.set_ylabel(f"seed {data.seeds[r]}\nlight {light + 1}", fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
 def write_report(result: dict, folder: Path, command: str | None = None) -> list[Path]:
     """Write ``relight_eval.md`` (table), ``relight_eval.json`` (rows with per-image
     values, config, seeds, lights) and ``relight_eval.png`` into an existing ``folder``."""
@@ -223,9 +286,18 @@ def write_report(result: dict, folder: Path, command: str | None = None) -> list
     if command:
         md += [f"Command: `{command}`", ""]
     md += [format_table(result), ""]
+    for r in result["rows"]:
+        if "std_error_corr" in r:
+            md.append(f"{r['method']}: Pearson correlation between the per-pixel std across samples and the "
+                      f"absolute error of the mean: {r['std_error_corr']:.3f}.")
+    md.append("")
     paths = [folder / "relight_eval.md", folder / "relight_eval.json", folder / "relight_eval.png"]
     paths[0].write_text("\n".join(md))
-    blob = {k: v for k, v in result.items() if k not in ("images", "data")}
+    for name in result.get("spread", {}):
+        slug = "".join(ch if ch.isalnum() else "_" for ch in name).strip("_")
+        paths.append(folder / f"confidence_{slug}.png")
+        _confidence_picture(result, name, paths[-1])
+    blob = {k: v for k, v in result.items() if k not in ("images", "data", "spread")}
     if command:
         blob["command"] = command
     paths[1].write_text(json.dumps(blob, indent=1))

@@ -66,6 +66,35 @@ def test_stochastic_methods_get_a_mean_row():
 
     result = evaluate({"noisy": Noisy()}, EvalConfig(count=1, size=16, samples=3))
     assert [r["method"] for r in result["rows"]] == ["noisy", "noisy (mean of 3)"]
+    std = result["spread"]["noisy (mean of 3)"]
+    assert std.shape == (1, 7, 16, 16) and (std > 0).any() and (std >= 0).all()
+    assert -1.0 <= result["rows"][1]["std_error_corr"] <= 1.0
+
+
+def test_confidence_picture_and_correlation(tmp_path):
+    """Noise that grows where the image is bright: the spread predicts the error."""
+    from relight.evaluate import sample_spread, std_error_correlation
+
+    gen = torch.Generator().manual_seed(0)
+    target = torch.rand(1, 2, 3, 8, 8, generator=gen) * 0.5
+    scale = torch.zeros(1, 2, 1, 8, 8)
+    scale[..., :4] = 0.2  # left half noisy, right half exact
+    preds = [(target + scale * torch.randn(target.shape, generator=gen)).clamp_min(0) for _ in range(8)]
+    std = sample_spread(preds)
+    assert float(std[..., 4:].max()) == 0.0 and float(std[..., :4].mean()) > 0.05
+    assert std_error_correlation(std, preds[0], target) > 0.5
+
+    class Noisy(get_relighter("input").__class__):
+        stochastic = True
+
+        def _relight(self, photo, camera, lights, *, generator=None):
+            out = super()._relight(photo, camera, lights)
+            return (out * (1 + 0.2 * torch.rand(out.shape, generator=generator))).clamp_min(0)
+
+    result = evaluate({"noisy": Noisy()}, EvalConfig(count=1, size=16, samples=2))
+    paths = write_report(result, tmp_path)
+    assert (tmp_path / "confidence_noisy__mean_of_2.png").is_file() and len(paths) == 4
+    assert "Pearson correlation" in (tmp_path / "relight_eval.md").read_text()
 
 
 def test_eval_data_is_held_out_and_deterministic():
