@@ -42,8 +42,10 @@ class RelightConfig:
         photo_concat: also feed the photo (model space) to the UNet and ControlNet as
             extra input channels (tiny only: its UNet is trained from scratch, so its
             input layer is free to change; sd21's frozen UNet keeps 4 latent channels).
+            None: the preset's default (tiny: on, sd21: off).
         residual: diffuse the difference between the target and the photo (model space)
             instead of the target itself; the texture the two share needs no generating.
+            None: the preset's default (tiny: on, sd21: off).
     """
 
     preset: str = "tiny"
@@ -58,8 +60,8 @@ class RelightConfig:
     plane_size: float = 4.0
     prompt: str = "a photo taken of the surface of an object"
     sd21_path: str | None = None
-    photo_concat: bool = True
-    residual: bool = True
+    photo_concat: bool | None = None
+    residual: bool | None = None
     extra: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -69,6 +71,12 @@ class RelightConfig:
             raise ValueError(f"unknown ablation {self.ablation!r}; known: {sorted(ABLATIONS)}")
         if self.preset == "sd21" and not self.sd21_path:
             raise ValueError("the sd21 preset needs sd21_path, a local diffusers folder of Stable Diffusion 2.1")
+        tiny = self.preset == "tiny"
+        for name in ("photo_concat", "residual"):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, tiny)  # frozen dataclass: resolve the preset default once
+            elif getattr(self, name) and not tiny:
+                raise ValueError(f"{name} needs a UNet trained from scratch (preset 'tiny'), not {self.preset!r}")
         if self.resolution % 8:
             raise ValueError(f"resolution must be a multiple of 8, got {self.resolution}")
 

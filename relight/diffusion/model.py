@@ -31,6 +31,7 @@ from torch import nn
 
 import kernels
 from relight.diffusion.config import ABLATIONS, RelightConfig
+from relight.diffusion.sd21 import load_frozen_sd21
 from relight.modules import ConditionEncoder, LightTokenEncoder, install_decoupled_attention
 
 __all__ = ["RelightDiffusion", "Condition", "CONFIG_NAME", "WEIGHTS_NAME", "make_train_scheduler"]
@@ -76,31 +77,57 @@ def _tiny_unet(cfg: RelightConfig) -> UNet2DConditionModel:
 
 
 class RelightDiffusion(nn.Module):
-    """All trainable and frozen parts of the relighting model, saved as one checkpoint."""
+    """All trainable and frozen parts of the relighting model, saved as one checkpoint
+    (sd21: only the trained parts; the frozen ones are re-read from ``sd21_path``)."""
 
     def __init__(self, config: RelightConfig):
         super().__init__()
-        if config.preset != "tiny":
-            raise NotImplementedError("the sd21 preset is not built yet; use preset='tiny'")
         self.config = config
-        self.unet = _tiny_unet(config)
+        if config.preset == "tiny":
+            self.unet = _tiny_unet(config)
+            self.vae = None
+            # No text encoder in the tiny preset: one learned token fills the text slot.
+            self.null_text = nn.Parameter(torch.zeros(1, 1, config.cross_attention_dim))
+        else:
+            frozen = load_frozen_sd21(config.sd21_path, config.prompt)
+            self.unet, self.vae = frozen.unet, frozen.vae
+            self.register_buffer("prompt_embeds", frozen.prompt_embeds, persistent=False)
         self.controlnet = ControlNetModel.from_unet(self.unet, load_weights_from_unet=True)
+        self.controlnet.requires_grad_(True)  # copied from a frozen UNet, trained
         # Our condition encoder takes the conditioning embedding's place: its output is
         # added to ControlNet's conv_in output, as the embedding's would be.
         self.controlnet.controlnet_cond_embedding = nn.Identity()
+        # Installed after freezing: the new key/value projections are trainable.
         install_decoupled_attention(self.unet, config.num_light_tokens)
         install_decoupled_attention(self.controlnet, config.num_light_tokens)
         self.condition = ConditionEncoder(
-            out_channels=config.block_out_channels[0], downsample=False,
+            out_channels=self.unet.config.block_out_channels[0], downsample=self.vae is not None,
             widths=config.condition_widths, **ABLATIONS[config.ablation],
         )
-        self.light_tokens = LightTokenEncoder(token_dim=config.cross_attention_dim, num_tokens=config.num_light_tokens)
-        # No text encoder in the tiny preset: one learned token fills the text slot.
-        self.null_text = nn.Parameter(torch.zeros(1, 1, config.cross_attention_dim))
+        self.light_tokens = LightTokenEncoder(
+            token_dim=self.unet.config.cross_attention_dim, num_tokens=config.num_light_tokens
+        )
+
+    @property
+    def text_embeds(self) -> torch.Tensor:
+        """``[1, T, D]``: the learned null token (tiny) or the fixed prompt's embedding (sd21)."""
+        return self.null_text if self.vae is None else self.prompt_embeds
+
+    @property
+    def latent_scale(self) -> int:
+        """Image pixels per model-space pixel: 8 through the VAE (sd21), 1 in pixel space."""
+        return 8 if self.vae is not None else 1
+
+    @property
+    def sample_shape(self) -> tuple[int, int, int]:
+        """(C, h, w) of the diffused variable for one image."""
+        side = self.config.resolution // self.latent_scale
+        return (self.unet.config.out_channels, side, side)
 
     # ------------------------------------------------------------------ conditioning
     def feature_size(self) -> tuple[int, int]:
-        return (self.config.resolution, self.config.resolution)
+        """(h, w) of the condition features: ControlNet's conv_in resolution."""
+        return self.sample_shape[1:]
 
     def encode_condition(
         self,
@@ -118,13 +145,14 @@ class RelightDiffusion(nn.Module):
             light, camera: ``[N, 3]`` target light and camera positions.
             permutation: training-time shuffle of BCE features (``shuffle_within_groups``).
         Returns:
-            ``Condition`` (features, encoder states, photo in model space).
+            ``Condition`` (features, encoder states ``[N, T + L, D]``, photo tone-mapped
+            to [-1, 1]).
         """
         offsets = kernels.highlight_offsets(camera, light, self.config.plane_size, self.feature_size())
         feats = self.condition(background, photo, offsets, permutation)
         lvh = kernels.lvh_maps(light[:, None], camera[:, None], photo.shape[-2:], plane_size=self.config.plane_size)
         tokens = self.light_tokens(lvh[:, 0])
-        states = torch.cat([self.null_text.expand(tokens.shape[0], -1, -1), tokens], dim=1)
+        states = torch.cat([self.text_embeds.expand(tokens.shape[0], -1, -1), tokens], dim=1)
         return Condition(feats, states, self.tonemapped(photo))
 
     def unet_input(self, x_t: torch.Tensor, photo_x: torch.Tensor) -> torch.Tensor:
@@ -166,13 +194,19 @@ class RelightDiffusion(nn.Module):
 
     def to_model_space(self, linear: torch.Tensor, photo_x: torch.Tensor) -> torch.Tensor:
         """Targets ``[N, 3, H, W]`` linear -> the diffused variable ``x0``: tone-mapped in
-        [-1, 1], minus the photo ``photo_x`` (model space) if ``residual``."""
+        [-1, 1], minus the photo ``photo_x`` if ``residual``; sd21: the VAE latent mean
+        ``[N, 4, H/8, W/8]`` times the VAE's scaling factor."""
         x = self.tonemapped(linear)
+        if self.vae is not None:
+            with torch.no_grad():
+                return self.vae.encode(x).latent_dist.mean * self.vae.config.scaling_factor
         return x - photo_x if self.config.residual else x
 
     def to_linear(self, x: torch.Tensor, photo_x: torch.Tensor) -> torch.Tensor:
         """Inverse of ``to_model_space``: linear radiance, clamped to the tone map's range."""
-        if self.config.residual:
+        if self.vae is not None:
+            x = self.vae.decode(x / self.vae.config.scaling_factor).sample
+        elif self.config.residual:
             x = x + photo_x
         return kernels.inverse_tonemap((x.clamp(-1, 1) + 1) / 2)
 
@@ -190,6 +224,7 @@ class RelightDiffusion(nn.Module):
         state = {
             k: (v.detach().to(dtype) if dtype is not None and v.is_floating_point() else v.detach()).contiguous()
             for k, v in self.state_dict().items()
+            if not self._is_frozen_key(k)
         }
         save_file(state, str(folder / WEIGHTS_NAME))
         (folder / CONFIG_NAME).write_text(json.dumps(self.config.to_dict(), indent=2))
@@ -204,5 +239,16 @@ class RelightDiffusion(nn.Module):
             raise FileNotFoundError(f"{folder}: not a relighting checkpoint (needs {CONFIG_NAME} and {WEIGHTS_NAME})")
         config = RelightConfig.from_dict(json.loads((folder / CONFIG_NAME).read_text()))
         model = cls(config)
-        model.load_state_dict(load_file(str(folder / WEIGHTS_NAME)), strict=True)
+        missing, unexpected = model.load_state_dict(load_file(str(folder / WEIGHTS_NAME)), strict=False)
+        missing = [k for k in missing if not model._is_frozen_key(k)]
+        if missing or unexpected:
+            raise RuntimeError(f"{folder}: checkpoint does not match the model; missing {missing[:5]}, "
+                               f"unexpected {unexpected[:5]}")
         return model
+
+    def _is_frozen_key(self, key: str) -> bool:
+        """State-dict keys of the frozen sd21 parts (re-read from ``sd21_path``, never
+        saved): the UNet's and VAE's own weights, not the decoupled-attention processors."""
+        if self.vae is None:
+            return False
+        return key.startswith("vae.") or (key.startswith("unet.") and ".processor." not in key)

@@ -83,12 +83,12 @@ class RelightPipeline:
         cameras = camera.to(device)[None].expand(n, 3)
         cond = model.encode_condition(photos, photos, target_lights, cameras)
         # 3. Start from noise.
-        x = torch.randn((n, 3, res, res), generator=generator, device="cpu").to(device)
+        x = torch.randn((n, *model.sample_shape), generator=generator, device="cpu").to(device)
         # 4. Denoise.
         self.scheduler.set_timesteps(num_inference_steps, device=device)
         for t in tqdm(self.scheduler.timesteps, desc="relight", disable=not progress, leave=False):
             v = model.denoise(x, t.expand(n), *cond)
             x = self.scheduler.step(v, t, x).prev_sample
         # 5. Back to linear radiance; average the samples of each target.
-        linear = model.to_linear(x, cond.photo_x).view(num_samples, k, 3, res, res)
+        linear = model.to_linear(x, cond.photo_x).reshape(num_samples, k, 3, res, res)
         return linear.mean(0)

@@ -41,6 +41,8 @@ class TrainConfig:
     lr: float = 2e-4
     seed: int = 0
     ablation: str = "full"
+    preset: str = "tiny"
+    sd21_path: str = ""  # local diffusers folder of Stable Diffusion 2.1 (preset sd21)
     ckpt_every: int = 50
     keep_every: int = 0  # also keep a copy of the checkpoint every N steps (0 = none), e.g. for same-budget ablations
     threads: int = 0  # torch threads; 0 = leave torch's default
@@ -89,9 +91,10 @@ def main(cfg: TrainConfig) -> Path:
         model = RelightDiffusion.from_pretrained(ckpt / "model")
     else:
         channels = tuple(int(c) for c in cfg.block_out_channels.split(","))
-        model = RelightDiffusion(
-            RelightConfig(resolution=cfg.resolution, ablation=cfg.ablation, block_out_channels=channels)
-        )
+        model = RelightDiffusion(RelightConfig(
+            preset=cfg.preset, sd21_path=cfg.sd21_path or None, resolution=cfg.resolution,
+            ablation=cfg.ablation, block_out_channels=channels,
+        ))
     optimizer = torch.optim.AdamW([p for p in model.parameters() if p.requires_grad], lr=cfg.lr)
     step, history = 0, []
     if (ckpt / "state.pt").is_file():
