@@ -80,7 +80,7 @@ def build_grad_kernels(F) -> SimpleNamespace:
             u = brdf.load_rgb(grad_out, row, i, j)
             radiance, a_rho, a_f0, a_rough, a_n = grad.radiance_and_map_grads(
                 p, brdf.load_position(light, b, k), brdf.load_position(camera, b, k),
-                n, rho_d, f0, rough, intensity, inverse_square, rough_floor, u,
+                n, rho_d, f0, rough, intensity, inverse_square, rough_floor, u, 0, zero, F(0.0),
             )
             g_rho += a_rho
             g_f0 += a_f0
@@ -110,9 +110,9 @@ def build_grad_kernels(F) -> SimpleNamespace:
         g_roughness: wp.array4d(dtype=F),
         g_specular: wp.array4d(dtype=F),
     ):
-        # grad_partial: [B, H, W] cotangent of the per-pixel loss sums. The cotangent of
-        # radiance x is g sign(log(x + eps) - log(y + eps)) / (x + eps); sign(0) = 0 as
-        # in torch. The radiance is recomputed, not stored (the forward pass is fused).
+        # grad_partial: [B, H, W] cotangent g of the per-pixel loss sums; the radiance's
+        # own cotangent is formed inside radiance_and_map_grads from the recomputed
+        # radiance (the forward pass is fused: nothing was stored).
         bb, ii, j = wp.tid()
         b = bb + b_offset
         i = ii + row_offset
@@ -131,18 +131,10 @@ def build_grad_kernels(F) -> SimpleNamespace:
         g_rough = F(0.0)
         for k in range(num_lights):
             row = b * num_lights + k
-            light_pos = brdf.load_position(light, b, k)
-            camera_pos = brdf.load_position(camera, b, k)
-            x = brdf.point_light_radiance(
-                p, light_pos, camera_pos, n, rho_d, f0, rough, intensity, inverse_square, rough_floor,
-            )
-            u = zero
-            for c in range(3):
-                diff = wp.log(x[c] + eps) - wp.log(target[row, c, i, j] + eps)
-                sign = wp.where(diff > F(0.0), F(1.0), wp.where(diff < F(0.0), F(-1.0), F(0.0)))
-                u[c] = g * sign / (x[c] + eps)
             radiance, a_rho, a_f0, a_rough, a_n = grad.radiance_and_map_grads(
-                p, light_pos, camera_pos, n, rho_d, f0, rough, intensity, inverse_square, rough_floor, u,
+                p, brdf.load_position(light, b, k), brdf.load_position(camera, b, k),
+                n, rho_d, f0, rough, intensity, inverse_square, rough_floor,
+                V3(g, F(0.0), F(0.0)), 1, brdf.load_rgb(target, row, i, j), eps,
             )
             g_rho += a_rho
             g_f0 += a_f0

@@ -43,12 +43,23 @@ def build_brdf_grad(F) -> SimpleNamespace:
         return wp.where(x >= F(0.0), F(1.0), F(0.0))
 
     @wp.func
+    def log_l1_cotangent(x: F, y: F, eps: F, g: F):
+        # d/dx of g |log(x + eps) - log(y + eps)|, with sign(0) = 0 as in torch.
+        diff = wp.log(x + eps) - wp.log(y + eps)
+        sign = wp.where(diff > F(0.0), F(1.0), wp.where(diff < F(0.0), F(-1.0), F(0.0)))
+        return g * sign / (x + eps)
+
+    @wp.func
     def radiance_and_map_grads(
         p: V3, light_pos: V3, camera_pos: V3, n: V3, rho_d: V3, f0: V3, rough: F,
-        intensity: V3, inverse_square: int, rough_floor: F, u: V3,
+        intensity: V3, inverse_square: int, rough_floor: F, u: V3, log_l1: int, target: V3, eps: F,
     ):
-        """For unit normal ``n`` and cotangent ``u`` of one light's radiance: returns
-        (radiance, dL/d rho_d, dL/d F0, dL/d roughness, dL/d n) (n: the unit normal)."""
+        """Map gradients of one light's radiance at one pixel, for unit normal ``n``.
+
+        The cotangent of the radiance is ``u`` (``log_l1`` = 0), or, for the fused
+        rendering loss (``log_l1`` = 1), that of ``u[0] * sum_c |log(x_c + eps) -
+        log(target_c + eps)|``, formed here from the radiance x computed on the way.
+        Returns (radiance, dL/d rho_d, dL/d F0, dL/d roughness, dL/d n)."""
         to_light = light_pos - p
         dist2 = wp.dot(to_light, to_light) + F(NORMALIZE_EPS)
         l = to_light / wp.sqrt(dist2)
@@ -82,7 +93,14 @@ def build_brdf_grad(F) -> SimpleNamespace:
         if inverse_square != 0:
             radiance = radiance / dist2
             sc = F(1.0) / dist2
-        us = wp.cw_mul(u, intensity) * sc
+        cot = u
+        if log_l1 != 0:
+            cot = V3(
+                log_l1_cotangent(radiance[0], target[0], eps, u[0]),
+                log_l1_cotangent(radiance[1], target[1], eps, u[0]),
+                log_l1_cotangent(radiance[2], target[2], eps, u[0]),
+            )
+        us = wp.cw_mul(cot, intensity) * sc
         g_rho = wp.cw_mul(us, one - f0) * (ndl * F(INV_PI))
         g_f0 = wp.cw_mul(us, rho_d * F(-INV_PI) + (one - V3(w, w, w)) * dv) * ndl
         g_dv = ndl * wp.dot(us, fr)
