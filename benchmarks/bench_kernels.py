@@ -295,6 +295,11 @@ def compile_worker(modules: list[str]) -> dict:
     steady = time.perf_counter() - t
     result["modules"]["(warp toolchain, trivial kernel)"] = {"first_s": first, "steady_s": steady,
                                                                "load_s": first - steady}
+    # torch.autograd.grad's first call with grad_outputs imports torch.fx's symbolic
+    # shapes (sympy, ~0.25-0.5 s here): pay it now, so that the grad module's first call
+    # times the module, not torch.
+    warm = torch.ones(2, requires_grad=True)
+    torch.autograd.grad(warm * 2, warm, torch.ones(2))
     for module in modules:
         op, dtype_name = module.rsplit("_", 1)
         dtype = {"f32": torch.float32, "f64": torch.float64}[dtype_name]

@@ -44,8 +44,9 @@ def build_brdf_grad(F) -> SimpleNamespace:
 
     @wp.func
     def log_l1_cotangent(x: F, y: F, eps: F, g: F):
-        # d/dx of g |log(x + eps) - log(y + eps)|, with sign(0) = 0 as in torch.
-        diff = wp.log(x + eps) - wp.log(y + eps)
+        # d/dx of g |log(x + eps) - log(y + eps)|, with sign(0) = 0 as in torch. log is
+        # increasing, so the sign of the log difference is that of x - y: no log needed.
+        diff = x - y
         sign = wp.where(diff > F(0.0), F(1.0), wp.where(diff < F(0.0), F(-1.0), F(0.0)))
         return g * sign / (x + eps)
 
