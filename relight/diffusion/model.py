@@ -194,20 +194,22 @@ class RelightDiffusion(nn.Module):
 
     def to_model_space(self, linear: torch.Tensor, photo_x: torch.Tensor) -> torch.Tensor:
         """Targets ``[N, 3, H, W]`` linear -> the diffused variable ``x0``: tone-mapped in
-        [-1, 1], minus the photo ``photo_x`` if ``residual``; sd21: the VAE latent mean
+        [-1, 1], minus the photo ``photo_x`` if ``residual``, times ``data_scale``; sd21: the VAE latent mean
         ``[N, 4, H/8, W/8]`` times the VAE's scaling factor."""
         x = self.tonemapped(linear)
         if self.vae is not None:
             with torch.no_grad():
                 return self.vae.encode(x).latent_dist.mean * self.vae.config.scaling_factor
-        return x - photo_x if self.config.residual else x
+        return (x - photo_x if self.config.residual else x) * self.config.data_scale
 
     def to_linear(self, x: torch.Tensor, photo_x: torch.Tensor) -> torch.Tensor:
         """Inverse of ``to_model_space``: linear radiance, clamped to the tone map's range."""
         if self.vae is not None:
             x = self.vae.decode(x / self.vae.config.scaling_factor).sample
-        elif self.config.residual:
-            x = x + photo_x
+        else:
+            x = x / self.config.data_scale
+            if self.config.residual:
+                x = x + photo_x
         return kernels.inverse_tonemap((x.clamp(-1, 1) + 1) / 2)
 
     # ------------------------------------------------------------------ persistence

@@ -117,7 +117,7 @@ def test_residual_space_round_trips_and_photo_enters_the_unet(tiny_model):
     target = torch.rand_like(photo) * 0.8  # inside the tone map's unclamped range
     photo_x = RelightDiffusion.tonemapped(photo)
     x0 = tiny_model.to_model_space(target, photo_x)
-    assert torch.allclose(x0, RelightDiffusion.tonemapped(target) - photo_x)
+    assert torch.allclose(x0, (RelightDiffusion.tonemapped(target) - photo_x) * tiny_model.config.data_scale)
     assert torch.allclose(tiny_model.to_linear(x0, photo_x), target, atol=1e-5)
     assert tiny_model.unet.conv_in.in_channels == 6
     with torch.no_grad():
@@ -130,9 +130,9 @@ def test_checkpoints_without_the_switches_load_as_plain():
     from relight.diffusion import RelightConfig
 
     legacy = RelightConfig(photo_concat=False, residual=False).to_dict()
-    del legacy["photo_concat"], legacy["residual"]
+    del legacy["photo_concat"], legacy["residual"], legacy["data_scale"]
     cfg = RelightConfig.from_dict(legacy)
-    assert not cfg.photo_concat and not cfg.residual
+    assert not cfg.photo_concat and not cfg.residual and cfg.data_scale == 1.0
     model = RelightDiffusion(cfg)
     assert model.unet.conv_in.in_channels == 3
     target = torch.rand(1, 3, 8, 8) * 0.8
