@@ -84,7 +84,10 @@ def build_brdf_grad(F) -> SimpleNamespace:
         fr = f0 + (one - f0) * w
         big_a = ndl * (F(1.0) - k) + k
         big_b = ndv * (F(1.0) - k) + k
-        vis = F(1.0) / big_a * (F(1.0) / big_b) * F(0.25)
+        # Reciprocals computed once and reused below (divisions dominate this function).
+        inv_a = F(1.0) / big_a
+        inv_b = F(1.0) / big_b
+        vis = inv_a * inv_b * F(0.25)
         dv = d * vis
         diffuse = wp.cw_mul(rho_d, one - f0) * F(INV_PI)
         # Same expression order as brdf.point_light_radiance: the fused loss's gradient
@@ -107,12 +110,13 @@ def build_brdf_grad(F) -> SimpleNamespace:
         g_dv = ndl * wp.dot(us, fr)
         g_d = g_dv * vis
         g_vis = g_dv * d
-        g_ndl = (wp.dot(us, diffuse + fr * dv) - g_vis * vis * (F(1.0) - k) / big_a) * pass_mask(ndl_raw)
-        g_ndv = -g_vis * vis * (F(1.0) - k) / big_b * pass_mask(ndv_raw)
-        dd3 = F(PI) * dd * dd * dd
-        g_ndh = g_d * (F(-4.0) * a2 * ndh * (a2 - F(1.0)) / dd3) * pass_mask(ndh_raw)
-        g_alpha = g_d * F(2.0) * alpha * (dd - F(2.0) * a2 * ndh * ndh) / dd3
-        g_alpha += g_vis * (-vis) * ((F(1.0) - ndl) / big_a + (F(1.0) - ndv) / big_b) * F(0.5)
+        g_vis_vis = g_vis * vis
+        g_ndl = (wp.dot(us, diffuse + fr * dv) - g_vis_vis * (F(1.0) - k) * inv_a) * pass_mask(ndl_raw)
+        g_ndv = -g_vis_vis * (F(1.0) - k) * inv_b * pass_mask(ndv_raw)
+        inv_dd3 = F(1.0) / (F(PI) * dd * dd * dd)
+        g_ndh = g_d * (F(-4.0) * a2 * ndh * (a2 - F(1.0)) * inv_dd3) * pass_mask(ndh_raw)
+        g_alpha = g_d * F(2.0) * alpha * (dd - F(2.0) * a2 * ndh * ndh) * inv_dd3
+        g_alpha -= g_vis_vis * ((F(1.0) - ndl) * inv_a + (F(1.0) - ndv) * inv_b) * F(0.5)
         g_rough = g_alpha * F(2.0) * r * wp.where(rough >= rough_floor, F(1.0), F(0.0))
         # (v.h, hence w, depends on the positions only: no map gradient flows through it.)
         g_n = l * g_ndl + v * g_ndv + h * g_ndh
