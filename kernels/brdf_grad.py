@@ -24,6 +24,7 @@ above the bound, as torch's ``clamp_min`` does (``kernels.reference``).
 
 from functools import cache
 from types import SimpleNamespace
+
 import warp as wp
 
 from kernels.brdf import FRESNEL_A, FRESNEL_B, INV_PI, NORMALIZE_EPS, PI, build_brdf
