@@ -64,12 +64,8 @@ def build_grad_kernels(F) -> SimpleNamespace:
         b = bb + b_offset
         i = ii + row_offset
         num_lights = light.shape[1]
-        p = brdf.plane_point(i, j, diffuse.shape[2], diffuse.shape[3], plane_size)
-        rho_d = brdf.load_rgb(diffuse, b, i, j)
-        f0 = brdf.load_rgb(specular, b, i, j)
-        m = brdf.load_rgb(normal, b, i, j)
+        p, rho_d, f0, m, rough = brdf.load_pixel(diffuse, normal, roughness, specular, b, i, j, plane_size)
         n = brdf.safe_normalize(m)
-        rough = roughness[b, 0, i, j]
         zero = V3(F(0.0), F(0.0), F(0.0))
         g_rho = zero
         g_f0 = zero
@@ -117,12 +113,8 @@ def build_grad_kernels(F) -> SimpleNamespace:
         b = bb + b_offset
         i = ii + row_offset
         num_lights = light.shape[1]
-        p = brdf.plane_point(i, j, diffuse.shape[2], diffuse.shape[3], plane_size)
-        rho_d = brdf.load_rgb(diffuse, b, i, j)
-        f0 = brdf.load_rgb(specular, b, i, j)
-        m = brdf.load_rgb(normal, b, i, j)
+        p, rho_d, f0, m, rough = brdf.load_pixel(diffuse, normal, roughness, specular, b, i, j, plane_size)
         n = brdf.safe_normalize(m)
-        rough = roughness[b, 0, i, j]
         g = grad_partial[b, i, j]
         zero = V3(F(0.0), F(0.0), F(0.0))
         g_rho = zero

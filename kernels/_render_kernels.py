@@ -44,14 +44,9 @@ def build_render_kernels(F) -> SimpleNamespace:
         bb, ii, j = wp.tid()
         b = bb + b_offset
         i = ii + row_offset
-        height = diffuse.shape[2]
-        width = diffuse.shape[3]
         num_lights = light.shape[1]
-        p = brdf.plane_point(i, j, height, width, plane_size)
-        rho_d = brdf.load_rgb(diffuse, b, i, j)
-        f0 = brdf.load_rgb(specular, b, i, j)
-        n = brdf.safe_normalize(brdf.load_rgb(normal, b, i, j))
-        rough = roughness[b, 0, i, j]
+        p, rho_d, f0, m, rough = brdf.load_pixel(diffuse, normal, roughness, specular, b, i, j, plane_size)
+        n = brdf.safe_normalize(m)
         for k in range(num_lights):
             radiance = brdf.point_light_radiance(
                 p, brdf.load_position(light, b, k), brdf.load_position(camera, b, k),

@@ -101,6 +101,16 @@ def build_brdf(F) -> SimpleNamespace:
         return V3(x, y, F(0.0))
 
     @wp.func
+    def load_pixel(
+        diffuse: wp.array4d(dtype=F), normal: wp.array4d(dtype=F), roughness: wp.array4d(dtype=F),
+        specular: wp.array4d(dtype=F), b: int, i: int, j: int, plane_size: F,
+    ):
+        """Pixel (i, j) of batch item b, shared by every shading kernel: returns (plane
+        point, diffuse, specular, raw normal as stored, roughness)."""
+        p = plane_point(i, j, diffuse.shape[2], diffuse.shape[3], plane_size)
+        return p, load_rgb(diffuse, b, i, j), load_rgb(specular, b, i, j), load_rgb(normal, b, i, j), roughness[b, 0, i, j]
+
+    @wp.func
     def point_light_radiance(
         p: V3, light_pos: V3, camera_pos: V3, n: V3, rho_d: V3, f0: V3, rough: F,
         intensity: V3, inverse_square: int, rough_floor: F,
@@ -120,6 +130,7 @@ def build_brdf(F) -> SimpleNamespace:
         plane_point=plane_point,
         load_rgb=load_rgb,
         load_position=load_position,
+        load_pixel=load_pixel,
         point_light_radiance=point_light_radiance,
         safe_normalize=safe_normalize,
         ggx_ndf=ggx_ndf,
