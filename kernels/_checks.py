@@ -38,6 +38,12 @@ def check_same(ref_name: str, ref: torch.Tensor, **others: torch.Tensor) -> None
 def check_finite(**tensors: torch.Tensor) -> None:
     """Raise ``ValueError`` naming the first argument that holds NaN or inf."""
     for name, t in tensors.items():
+        # One reduction first: a NaN or inf anywhere makes the sum non-finite. The
+        # elementwise test (a 1-byte mask and a second pass, ~10% of a forward render at
+        # B=4, 256 x 256 on one core) only runs when the sum is not finite, which finite
+        # values can also cause by overflowing it.
+        if bool(torch.isfinite(t.detach().sum())):
+            continue
         if not bool(torch.isfinite(t).all()):
             bad = int((~torch.isfinite(t)).sum())
             raise ValueError(f"{name} holds {bad} NaN or inf value(s)")

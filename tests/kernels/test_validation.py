@@ -9,6 +9,7 @@ import pytest
 import torch
 
 import kernels
+from kernels._checks import check_finite
 
 
 @pytest.fixture
@@ -76,6 +77,18 @@ def test_non_finite_maps_are_named(good, index, name, bad):
     t[1, 0, 2, 3] = bad
     with pytest.raises(ValueError, match=rf"{name} holds 1 NaN or inf"):
         _render(good, index, t)
+
+
+def test_finite_values_whose_sum_overflows_are_accepted(good):
+    # check_finite tests the sum first; huge finite values overflow it to inf, and must
+    # still pass (the elementwise test decides), while +inf and -inf together (sum NaN)
+    # must still fail.
+    t = good["maps"][0].clone()
+    t[0, 0, 0, :2] = 3e38
+    check_finite(diffuse=t)
+    t[0, 0, 0, 0], t[0, 0, 0, 1] = float("inf"), float("-inf")
+    with pytest.raises(ValueError, match=r"diffuse holds 2 NaN or inf"):
+        check_finite(diffuse=t)
 
 
 # --------------------------------------------------------------------------- render: positions
