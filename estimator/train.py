@@ -31,7 +31,7 @@ from tqdm.auto import tqdm
 
 from estimator.checkpoint import latest_checkpoint, load_checkpoint, read_trainer_state, save_checkpoint
 from estimator.config import EstimatorConfig
-from estimator.losses import MAP_WEIGHT, RENDER_WEIGHT, estimator_loss
+from estimator.losses import MAP_WEIGHT, NORMAL_WEIGHT, RENDER_WEIGHT, estimator_loss
 from estimator.model import SVBRDFEstimator
 from materials.dataset import TRAIN_SEEDS, GroupConfig, RenderedGroups
 from materials.io.atomic import atomic_file, atomic_folder
@@ -56,7 +56,11 @@ class TrainConfig:
         lr, weight_decay, warmup_steps: AdamW, linear warm-up then cosine decay to
             ``min_lr_ratio * lr`` at ``steps``.
         max_views: the largest N (views of a group; view 0 is the flash photo).
-        map_weight, render_weight: loss weights (``estimator.losses``).
+        map_weight, render_weight, normal_weight: loss weights (``estimator.losses``).
+        init_from: a saved estimator folder (``save_pretrained``) whose weights start the
+            run, e.g. the shipped model for a fine-tuning run; its architecture must equal
+            ``model``. Ignored when resuming (the checkpoint already holds the weights);
+            the optimizer and schedule start fresh.
         out_dir: where the final model, loss curve and history are exported.
         ckpt_dir: training checkpoints (keep it outside the repository).
         ckpt_every, log_every: in steps.
@@ -79,6 +83,8 @@ class TrainConfig:
     max_views: int = 8
     map_weight: float = MAP_WEIGHT
     render_weight: float = RENDER_WEIGHT
+    normal_weight: float = NORMAL_WEIGHT
+    init_from: str | None = None
     out_dir: str = "runs/estimator"
     ckpt_dir: str = "/work/ckpt/estimator"
     ckpt_every: int = 100
@@ -173,6 +179,18 @@ def plot_history(history: list[dict], path: str | Path, *, smooth: int = 25) -> 
     plt.close(fig)
 
 
+def _load_initial_weights(model: SVBRDFEstimator, cfg: TrainConfig) -> None:
+    """Copy the weights of the saved estimator ``cfg.init_from`` into ``model``."""
+    folder = Path(cfg.init_from)
+    if not (folder / "config.json").is_file():
+        raise FileNotFoundError(f"init_from: {folder} is not a saved estimator (no config.json)")
+    source = SVBRDFEstimator.from_pretrained(folder)
+    saved = EstimatorConfig(**{k: source.config[k] for k in cfg.model.to_dict()})
+    if saved != cfg.model:
+        raise ValueError(f"init_from: {folder} has architecture {saved}, the run asks for {cfg.model}")
+    model.load_state_dict(source.state_dict())
+
+
 def main(cfg: TrainConfig) -> Path:
     """Train (or resume) and return the folder of the exported final model."""
     from accelerate import Accelerator
@@ -197,6 +215,9 @@ def main(cfg: TrainConfig) -> Path:
         state = load_checkpoint(folder, model=model, optimizer=optimizer, scheduler=scheduler)
         start, history = state["step"], state["history"]
         accelerator.print(f"resumed from {folder} at step {start}")
+    elif cfg.init_from is not None:
+        _load_initial_weights(model, cfg)
+        accelerator.print(f"started from the weights in {cfg.init_from}")
 
     dataset = RenderedGroups(TRAIN_SEEDS, cfg.group_config())
     loader = DataLoader(
@@ -222,7 +243,7 @@ def main(cfg: TrainConfig) -> Path:
         pred = model(batch["images"][:, views], batch["light"][:, views], batch["camera"][:, views])
         parts = estimator_loss(
             pred, Material.from_stacked(batch["maps"]), map_weight=cfg.map_weight, render_weight=cfg.render_weight,
-            generator=_step_generator(cfg.seed, step, stream=2),
+            normal_weight=cfg.normal_weight, generator=_step_generator(cfg.seed, step, stream=2),
         )
         optimizer.zero_grad(set_to_none=True)
         accelerator.backward(parts["loss"])

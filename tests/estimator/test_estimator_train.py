@@ -107,3 +107,33 @@ def test_parse_args_builds_the_dataclass():
     assert cfg.model.base_channels == 8 and cfg.model.channel_mults == (1, 2, 4)
     assert cfg.source_size == 96
     assert parse_args([]).model == EstimatorConfig()
+
+
+def test_init_from_starts_at_the_saved_weights(tmp_path):
+    # steps=1 with lr=0: the exported model must equal the one it started from.
+    source = main(_tiny_train_config(tmp_path / "a", steps=2))
+    started = main(_tiny_train_config(tmp_path / "b", steps=1, lr=0.0, init_from=str(source)))
+    a = load_file(str(next(source.glob("*.safetensors"))))
+    b = load_file(str(next(started.glob("*.safetensors"))))
+    assert a.keys() == b.keys()
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], atol=0, rtol=0, msg=k)
+
+
+def test_init_from_refuses_a_missing_folder_or_another_architecture(tmp_path):
+    with pytest.raises(FileNotFoundError, match="init_from"):
+        main(_tiny_train_config(tmp_path / "x", steps=1, init_from=str(tmp_path / "nowhere")))
+    source = main(_tiny_train_config(tmp_path / "a", steps=1))
+    other = EstimatorConfig(base_channels=4, channel_mults=(1, 2, 4), adapter_width=4, norm_groups=4)
+    with pytest.raises(ValueError, match="architecture"):
+        main(_tiny_train_config(tmp_path / "b", steps=1, model=other, init_from=str(source)))
+
+
+def test_normal_weight_scales_only_the_normal_term():
+    g = torch.Generator().manual_seed(0)
+    maps = lambda: Material.from_stacked(torch.rand(2, 10, 8, 8, generator=g))  # noqa: E731
+    pred, target = maps(), maps()
+    one = estimator_loss(pred, target, render_weight=0.0)
+    three = estimator_loss(pred, target, render_weight=0.0, normal_weight=3.0)
+    torch.testing.assert_close(three["map"] - one["map"], 2.0 * one["normal"])
+    torch.testing.assert_close(three["normal"], one["normal"])
