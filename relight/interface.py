@@ -41,6 +41,7 @@ import torch
 
 import kernels
 from kernels.presets import RenderPreset, get_preset
+from relight.shading import lambertian_relight
 
 __all__ = [
     "Relighter",
@@ -150,17 +151,9 @@ class InputRelighter(Relighter):
 
 
 class LambertianRelighter(Relighter):
-    """Analytic baseline: treat the photo as Lambertian on a flat plane and re-shade it.
-
-    With the SPEC BRDF's diffuse term only and the normal (0, 0, 1), a pixel at x lit by
-    a light at p has radiance ``rho / pi * cos(theta) * I * falloff``, with
-    ``cos(theta) = (p - x)_z / |p - x|`` and falloff ``1`` (``dgrsise``) or
-    ``1 / |p - x|^2``. Dividing the photo by its own collocated shading (light at the
-    camera c) and multiplying by the target's gives, per pixel,
-    ``relit = photo * shade(p) / shade(c)``; ``rho / pi`` and ``I`` cancel. It is exact
-    for a flat, purely diffuse material with F0 = 0 (up to the small Schlick-Fresnel
-    remainder the specular term keeps at F0 = 0), and bakes the flash highlight of any
-    other material into the relit images.
+    """Analytic baseline: treat the photo as Lambertian on a flat plane and re-shade it
+    (``relight.shading.lambertian_relight``: relit = photo * shade(light) / shade(flash),
+    exact for a flat diffuse material; any other keeps its flash highlight).
 
     Args:
         preset: scene conventions (plane size, falloff) of the positions.
@@ -171,26 +164,8 @@ class LambertianRelighter(Relighter):
     def __init__(self, preset: str | RenderPreset = "dgrsise"):
         self.preset = get_preset(preset)
 
-    def _shading(self, pos: torch.Tensor, h: int, w: int) -> torch.Tensor:
-        """``cos(theta) * falloff`` per pixel for positions ``[B, K, 3]``: ``[B, K, 1, H, W]``."""
-        s = self.preset.plane_size
-        dt, dev = pos.dtype, pos.device
-        # Pixel centres on the plane (SPEC section 2): row 0 at the top (+y).
-        xs = ((torch.arange(w, dtype=dt, device=dev) + 0.5) / w - 0.5) * s
-        ys = -((torch.arange(h, dtype=dt, device=dev) + 0.5) / h - 0.5) * s
-        dx = pos[..., 0, None, None] - xs[None, None, None, :]
-        dy = pos[..., 1, None, None] - ys[None, None, :, None]
-        dz = pos[..., 2, None, None].expand(-1, -1, h, w)
-        d2 = dx * dx + dy * dy + dz * dz
-        shade = dz / d2.sqrt()
-        if self.preset.inverse_square:
-            shade = shade / d2
-        return shade[:, :, None]
-
     def _relight(self, photo, camera, lights, *, generator=None):
-        h, w = photo.shape[-2:]
-        ratio = self._shading(lights, h, w) / self._shading(camera[:, None], h, w)
-        return photo[:, None] * ratio
+        return lambertian_relight(photo, camera, lights, self.preset)
 
 
 class NetworkRelighter(Relighter):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 
-__all__ = ["RelightConfig", "ABLATIONS", "PRESETS"]
+__all__ = ["RelightConfig", "ABLATIONS", "PRESETS", "BASES"]
 
 #: Paper Table 3 switches -> ConditionEncoder settings.
 #: ``ori_ctrlnet``: ControlNet's own conditioning embedding on the photo (plain convs,
@@ -19,6 +19,8 @@ ABLATIONS: dict[str, dict] = {
 }
 
 PRESETS = ("tiny", "sd21")
+#: What the tiny preset's residual and extra input channels are relative to.
+BASES = ("photo", "lambertian")
 
 
 @dataclass(frozen=True)
@@ -46,6 +48,11 @@ class RelightConfig:
         residual: diffuse the difference between the target and the photo (model space)
             instead of the target itself; the texture the two share needs no generating.
             None: the preset's default (tiny: on, sd21: off).
+        base: what ``photo_concat`` and ``residual`` use as "the photo": ``"photo"``, the
+            flash photo itself, or ``"lambertian"``, its analytic relighting under the
+            target light (``relight.shading``; the ``lambertian`` baseline's output). The
+            latter starts the model from the better of the two baselines (Table 1: 23.9
+            vs 20.3 dB), leaving it highlights and specular shading to generate. Tiny only.
         data_scale: the tiny preset diffuses ``data_scale`` times its pixel-space variable
             (tone-mapped [-1, 1], or the residual). Our renders have a standard deviation
             near 0.3 there (residuals 0.35, measured on 24 training groups); 3 brings it
@@ -69,6 +76,7 @@ class RelightConfig:
     photo_concat: bool | None = None
     residual: bool | None = None
     data_scale: float = 3.0
+    base: str = "photo"
     extra: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -84,6 +92,10 @@ class RelightConfig:
                 object.__setattr__(self, name, tiny)  # frozen dataclass: resolve the preset default once
             elif getattr(self, name) and not tiny:
                 raise ValueError(f"{name} needs a UNet trained from scratch (preset 'tiny'), not {self.preset!r}")
+        if self.base not in BASES:
+            raise ValueError(f"unknown base {self.base!r}; known: {BASES}")
+        if self.base != "photo" and not tiny:
+            raise ValueError(f"base {self.base!r} needs the tiny preset, not {self.preset!r}")
         if self.resolution % 8:
             raise ValueError(f"resolution must be a multiple of 8, got {self.resolution}")
 
@@ -100,6 +112,7 @@ class RelightConfig:
         d.setdefault("photo_concat", False)
         d.setdefault("residual", False)
         d.setdefault("data_scale", 1.0)
+        d.setdefault("base", "photo")
         d["block_out_channels"] = tuple(d["block_out_channels"])
         d["condition_widths"] = tuple(d["condition_widths"])
         return RelightConfig(**d)

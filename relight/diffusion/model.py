@@ -7,14 +7,16 @@ Data flow for N target images (SPEC section 4):
         (replaces ControlNet's conditioning embedding: added to its conv_in output)
     l/v/h maps of the targets --> LightTokenEncoder --> [N, L, D] light tokens
     [null text | light tokens] --> decoupled cross-attention in UNet and ControlNet
-    [x_t | photo], t --> ControlNet residuals --> UNet --> v-prediction
+    [x_t | base], t --> ControlNet residuals --> UNet --> v-prediction
 
 The tiny preset works in pixel space on tone-mapped images scaled to [-1, 1]. Two
 switches of the tiny preset (both on by default, see ``RelightConfig``) depart from the
 paper's SD 2.1 set-up, whose frozen UNet can only be steered through ControlNet: the
 photo also enters the UNet as extra input channels, and the model diffuses the
 difference target - photo rather than the target. A checkpoint trained without them
-placed highlights correctly but generated its own texture (relight/DESIGN.md).
+placed highlights correctly but generated its own texture (relight/DESIGN.md). With
+``base="lambertian"``, "the photo" in both switches is its analytic Lambertian
+relighting under the target light instead (``relight.shading``).
 """
 
 from __future__ import annotations
@@ -30,9 +32,11 @@ from safetensors.torch import load_file, save_file
 from torch import nn
 
 import kernels
+from kernels.presets import get_preset
 from relight.diffusion.config import ABLATIONS, RelightConfig
 from relight.diffusion.sd21 import load_frozen_sd21
 from relight.modules import ConditionEncoder, LightTokenEncoder, install_decoupled_attention
+from relight.shading import lambertian_relight
 
 __all__ = ["RelightDiffusion", "Condition", "CONFIG_NAME", "WEIGHTS_NAME", "make_train_scheduler"]
 
@@ -53,12 +57,13 @@ class Condition(NamedTuple):
 
     feats: ``[N, C, h, w]`` condition-encoder features (added to ControlNet's conv_in).
     states: ``[N, 1 + L, D]`` null text + light tokens for the cross-attention.
-    photo_x: ``[N, 3, H, W]`` the photo in model space ([-1, 1], tone-mapped).
+    base_x: ``[N, 3, H, W]`` the residual base in model space ([-1, 1], tone-mapped): the
+        photo, or its Lambertian relighting (``RelightConfig.base``).
     """
 
     feats: torch.Tensor
     states: torch.Tensor
-    photo_x: torch.Tensor
+    base_x: torch.Tensor
 
 
 def _tiny_unet(cfg: RelightConfig) -> UNet2DConditionModel:
@@ -145,26 +150,34 @@ class RelightDiffusion(nn.Module):
             light, camera: ``[N, 3]`` target light and camera positions.
             permutation: training-time shuffle of BCE features (``shuffle_within_groups``).
         Returns:
-            ``Condition`` (features, encoder states ``[N, T + L, D]``, photo tone-mapped
-            to [-1, 1]).
+            ``Condition`` (features, encoder states ``[N, T + L, D]``, residual base).
         """
         offsets = kernels.highlight_offsets(camera, light, self.config.plane_size, self.feature_size())
         feats = self.condition(background, photo, offsets, permutation)
         lvh = kernels.lvh_maps(light[:, None], camera[:, None], photo.shape[-2:], plane_size=self.config.plane_size)
         tokens = self.light_tokens(lvh[:, 0])
         states = torch.cat([self.text_embeds.expand(tokens.shape[0], -1, -1), tokens], dim=1)
-        return Condition(feats, states, self.tonemapped(photo))
+        return Condition(feats, states, self.residual_base(photo, light, camera))
 
-    def unet_input(self, x_t: torch.Tensor, photo_x: torch.Tensor) -> torch.Tensor:
-        """``x_t`` ``[N, 3, H, W]``, with the photo's channels appended if ``photo_concat``."""
-        return torch.cat([x_t, photo_x], dim=1) if self.config.photo_concat else x_t
+    def residual_base(self, photo: torch.Tensor, light: torch.Tensor, camera: torch.Tensor) -> torch.Tensor:
+        """What ``residual`` and ``photo_concat`` use as the photo, in model space ``[N, 3, H, W]``:
+        the tone-mapped photo, or (``base="lambertian"``) its Lambertian relighting under
+        ``light`` ``[N, 3]``, tone-mapped."""
+        if self.config.base == "lambertian":
+            preset = get_preset("dgrsise").with_overrides(plane_size=self.config.plane_size)
+            photo = lambertian_relight(photo, camera, light[:, None], preset)[:, 0]
+        return self.tonemapped(photo)
+
+    def unet_input(self, x_t: torch.Tensor, base_x: torch.Tensor) -> torch.Tensor:
+        """``x_t`` ``[N, 3, H, W]``, with the base's channels appended if ``photo_concat``."""
+        return torch.cat([x_t, base_x], dim=1) if self.config.photo_concat else x_t
 
     def denoise(
-        self, x_t: torch.Tensor, t: torch.Tensor, feats: torch.Tensor, states: torch.Tensor, photo_x: torch.Tensor
+        self, x_t: torch.Tensor, t: torch.Tensor, feats: torch.Tensor, states: torch.Tensor, base_x: torch.Tensor
     ) -> torch.Tensor:
         """v-prediction ``[N, 3, H, W]`` for noisy targets ``x_t`` at timesteps ``t``
         (the remaining arguments: a ``Condition``, splatted)."""
-        x_in = self.unet_input(x_t, photo_x)
+        x_in = self.unet_input(x_t, base_x)
         down, mid = self.controlnet(x_in, t, encoder_hidden_states=states, controlnet_cond=feats, return_dict=False)
         return self.unet(
             x_in, t, encoder_hidden_states=states,
@@ -192,24 +205,24 @@ class RelightDiffusion(nn.Module):
         """Linear radiance -> tone-mapped -> [-1, 1] (the tiny preset's pixel space)."""
         return kernels.tonemap(linear) * 2 - 1
 
-    def to_model_space(self, linear: torch.Tensor, photo_x: torch.Tensor) -> torch.Tensor:
+    def to_model_space(self, linear: torch.Tensor, base_x: torch.Tensor) -> torch.Tensor:
         """Targets ``[N, 3, H, W]`` linear -> the diffused variable ``x0``: tone-mapped in
-        [-1, 1], minus the photo ``photo_x`` if ``residual``, times ``data_scale``; sd21: the VAE latent mean
+        [-1, 1], minus the base ``base_x`` (``residual_base``) if ``residual``, times ``data_scale``; sd21: the VAE latent mean
         ``[N, 4, H/8, W/8]`` times the VAE's scaling factor."""
         x = self.tonemapped(linear)
         if self.vae is not None:
             with torch.no_grad():
                 return self.vae.encode(x).latent_dist.mean * self.vae.config.scaling_factor
-        return (x - photo_x if self.config.residual else x) * self.config.data_scale
+        return (x - base_x if self.config.residual else x) * self.config.data_scale
 
-    def to_linear(self, x: torch.Tensor, photo_x: torch.Tensor) -> torch.Tensor:
+    def to_linear(self, x: torch.Tensor, base_x: torch.Tensor) -> torch.Tensor:
         """Inverse of ``to_model_space``: linear radiance, clamped to the tone map's range."""
         if self.vae is not None:
             x = self.vae.decode(x / self.vae.config.scaling_factor).sample
         else:
             x = x / self.config.data_scale
             if self.config.residual:
-                x = x + photo_x
+                x = x + base_x
         return kernels.inverse_tonemap((x.clamp(-1, 1) + 1) / 2)
 
     # ------------------------------------------------------------------ persistence

@@ -6,7 +6,6 @@ import torch
 import torch.nn.functional as F
 from diffusers import DDPMScheduler
 
-from relight.diffusion.model import RelightDiffusion
 from relight.modules import shuffle_within_groups
 
 __all__ = ["diffusion_loss"]
@@ -29,10 +28,11 @@ def diffusion_loss(
     photo = images[:, :1].expand(-1, v, -1, -1, -1).flatten(0, 1)
     perm = shuffle_within_groups(b * v, v, generator).to(images.device)
     unwrapped = getattr(model, "module", model)  # DistributedDataParallel keeps the model in .module
-    x0 = unwrapped.to_model_space(targets, RelightDiffusion.tonemapped(photo))
+    light, camera = light.flatten(0, 1), camera.flatten(0, 1)
+    x0 = unwrapped.to_model_space(targets, unwrapped.residual_base(photo, light, camera))
     noise = torch.randn(x0.shape, generator=generator).to(x0.device)
     t = torch.randint(0, scheduler.config.num_train_timesteps, (x0.shape[0],), generator=generator).to(x0.device)
     x_t = scheduler.add_noise(x0, noise, t)
     target = scheduler.get_velocity(x0, noise, t)
-    pred = model(x_t, t, photo, targets, light.flatten(0, 1), camera.flatten(0, 1), perm)
+    pred = model(x_t, t, photo, targets, light, camera, perm)
     return F.mse_loss(pred, target)

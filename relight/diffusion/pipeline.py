@@ -90,5 +90,5 @@ class RelightPipeline:
             v = model.denoise(x, t.expand(n), *cond)
             x = self.scheduler.step(v, t, x).prev_sample
         # 5. Back to linear radiance; average the samples of each target.
-        linear = model.to_linear(x, cond.photo_x).reshape(num_samples, k, 3, res, res)
+        linear = model.to_linear(x, cond.base_x).reshape(num_samples, k, 3, res, res)
         return linear.mean(0)

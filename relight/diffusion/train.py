@@ -41,6 +41,7 @@ class TrainConfig:
     lr: float = 2e-4
     seed: int = 0
     ablation: str = "full"
+    base: str = "photo"  # tiny preset: residual relative to the photo or its Lambertian relighting
     preset: str = "tiny"
     sd21_path: str = ""  # local diffusers folder of Stable Diffusion 2.1 (preset sd21)
     ckpt_every: int = 50
@@ -93,7 +94,7 @@ def main(cfg: TrainConfig) -> Path:
         channels = tuple(int(c) for c in cfg.block_out_channels.split(","))
         model = RelightDiffusion(RelightConfig(
             preset=cfg.preset, sd21_path=cfg.sd21_path or None, resolution=cfg.resolution,
-            ablation=cfg.ablation, block_out_channels=channels,
+            ablation=cfg.ablation, block_out_channels=channels, base=cfg.base,
         ))
     optimizer = torch.optim.AdamW([p for p in model.parameters() if p.requires_grad], lr=cfg.lr)
     step, history = 0, []

@@ -25,7 +25,7 @@ def test_zero_initialised_injection_leaves_unet_unchanged(tiny_model):
     with torch.no_grad():
         cond = tiny_model.encode_condition(photo, photo, light, camera)
         with_control = tiny_model.denoise(x, t, *cond)
-        plain = tiny_model.unet(tiny_model.unet_input(x, cond.photo_x), t, encoder_hidden_states=cond.states).sample
+        plain = tiny_model.unet(tiny_model.unet_input(x, cond.base_x), t, encoder_hidden_states=cond.states).sample
     assert torch.equal(with_control, plain)
 
 
@@ -34,9 +34,9 @@ def test_light_tokens_enter_once_value_projection_moves(tiny_model):
     other = light.clone()
     other[:, 0] = -3.0
     with torch.no_grad():
-        _, s1, photo_x = tiny_model.encode_condition(photo, photo, light, camera)
+        _, s1, base_x = tiny_model.encode_condition(photo, photo, light, camera)
         _, s2, _ = tiny_model.encode_condition(photo, photo, other, camera)
-        x_in = tiny_model.unet_input(x, photo_x)
+        x_in = tiny_model.unet_input(x, base_x)
         assert torch.equal(tiny_model.unet(x_in, t, encoder_hidden_states=s1).sample,
                            tiny_model.unet(x_in, t, encoder_hidden_states=s2).sample)
         for p in decoupled_processors(tiny_model.unet):
@@ -115,10 +115,10 @@ def test_registered_behind_the_common_interface(tiny_model, tmp_path):
 def test_residual_space_round_trips_and_photo_enters_the_unet(tiny_model):
     photo, light, camera, x, t = _inputs(tiny_model)
     target = torch.rand_like(photo) * 0.8  # inside the tone map's unclamped range
-    photo_x = RelightDiffusion.tonemapped(photo)
-    x0 = tiny_model.to_model_space(target, photo_x)
-    assert torch.allclose(x0, (RelightDiffusion.tonemapped(target) - photo_x) * tiny_model.config.data_scale)
-    assert torch.allclose(tiny_model.to_linear(x0, photo_x), target, atol=1e-5)
+    base_x = RelightDiffusion.tonemapped(photo)
+    x0 = tiny_model.to_model_space(target, base_x)
+    assert torch.allclose(x0, (RelightDiffusion.tonemapped(target) - base_x) * tiny_model.config.data_scale)
+    assert torch.allclose(tiny_model.to_linear(x0, base_x), target, atol=1e-5)
     assert tiny_model.unet.conv_in.in_channels == 6
     with torch.no_grad():
         a = tiny_model.denoise(x, t, *tiny_model.encode_condition(photo, photo, light, camera))
@@ -137,3 +137,34 @@ def test_checkpoints_without_the_switches_load_as_plain():
     assert model.unet.conv_in.in_channels == 3
     target = torch.rand(1, 3, 8, 8) * 0.8
     assert torch.allclose(model.to_linear(model.to_model_space(target, None), None), target, atol=1e-5)
+
+
+def test_lambertian_base_is_the_lambertian_baseline_and_round_trips(tiny_model):
+    import dataclasses
+
+    from relight.interface import get_relighter
+
+    model = RelightDiffusion(dataclasses.replace(tiny_model.config, base="lambertian"))
+    photo, light, camera, x, t = _inputs(model)
+    expected = get_relighter("lambertian").relight(photo, camera, light[:, None])[:, 0]
+    base_x = model.residual_base(photo, light, camera)
+    torch.testing.assert_close(base_x, RelightDiffusion.tonemapped(expected))
+    with torch.no_grad():
+        cond = model.encode_condition(photo, photo, light, camera)
+    torch.testing.assert_close(cond.base_x, base_x)
+    target = torch.rand_like(photo) * 0.8
+    torch.testing.assert_close(model.to_linear(model.to_model_space(target, base_x), base_x), target, atol=1e-5, rtol=0)
+    # The photo-based default differs wherever the light is not at the camera.
+    assert not torch.allclose(base_x, RelightDiffusion.tonemapped(photo))
+
+
+def test_lambertian_base_is_checked_and_legacy_configs_use_the_photo():
+    from relight.diffusion import RelightConfig
+
+    with pytest.raises(ValueError, match="unknown base"):
+        RelightConfig(base="phong")
+    with pytest.raises(ValueError, match="tiny"):
+        RelightConfig(preset="sd21", sd21_path="/nowhere", base="lambertian")
+    legacy = RelightConfig().to_dict()
+    del legacy["base"]
+    assert RelightConfig.from_dict(legacy).base == "photo"

@@ -94,8 +94,8 @@ def test_frozen_parts_and_shapes(sd21_model):
         v = m.denoise(x, t, *cond)
         plain = m.unet(x, t, encoder_hidden_states=cond.states).sample
     assert v.shape == x.shape and torch.equal(v, plain)  # zero-initialised injection
-    x0 = m.to_model_space(photo, cond.photo_x)
-    assert x0.shape == (2, 4, 8, 8) and m.to_linear(x0, cond.photo_x).shape == photo.shape
+    x0 = m.to_model_space(photo, cond.base_x)
+    assert x0.shape == (2, 4, 8, 8) and m.to_linear(x0, cond.base_x).shape == photo.shape
 
 
 def test_training_step_moves_only_trainable_parts(sd21_model):

@@ -1,0 +1,58 @@
+"""Flat-plane Lambertian shading and the analytic relighting built on it.
+
+Shared by the ``lambertian`` baseline (``relight.interface.LambertianRelighter``) and by
+the tiny diffusion preset's ``base="lambertian"`` switch, which diffuses the difference
+between the target and this relighting (``relight.diffusion.config``).
+
+With the SPEC BRDF's diffuse term only and the normal (0, 0, 1), a pixel at x lit by a
+light at p has radiance ``rho / pi * cos(theta) * I * falloff``, with ``cos(theta) =
+(p - x)_z / |p - x|`` and falloff ``1`` (``dgrsise``) or ``1 / |p - x|^2``. Dividing the
+photo by its own collocated shading (light at the camera c) and multiplying by the
+target's gives ``relit = photo * shade(p) / shade(c)``; ``rho / pi`` and ``I`` cancel.
+Exact for a flat, purely diffuse material with F0 = 0 (up to the small Schlick-Fresnel
+remainder the specular term keeps at F0 = 0); any other material keeps its flash
+highlight, scaled, in the relit images.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from kernels.presets import RenderPreset
+
+__all__ = ["plane_shading", "lambertian_relight"]
+
+
+def plane_shading(pos: torch.Tensor, h: int, w: int, preset: RenderPreset) -> torch.Tensor:
+    """``cos(theta) * falloff`` per pixel for positions ``[B, K, 3]``: ``[B, K, 1, H, W]``."""
+    s = preset.plane_size
+    dt, dev = pos.dtype, pos.device
+    # Pixel centres on the plane (SPEC section 2): row 0 at the top (+y).
+    xs = ((torch.arange(w, dtype=dt, device=dev) + 0.5) / w - 0.5) * s
+    ys = -((torch.arange(h, dtype=dt, device=dev) + 0.5) / h - 0.5) * s
+    dx = pos[..., 0, None, None] - xs[None, None, None, :]
+    dy = pos[..., 1, None, None] - ys[None, None, :, None]
+    dz = pos[..., 2, None, None].expand(-1, -1, h, w)
+    d2 = dx * dx + dy * dy + dz * dz
+    shade = dz / d2.sqrt()
+    if preset.inverse_square:
+        shade = shade / d2
+    return shade[:, :, None]
+
+
+def lambertian_relight(
+    photo: torch.Tensor, camera: torch.Tensor, lights: torch.Tensor, preset: RenderPreset
+) -> torch.Tensor:
+    """Relight flash photos as if they were Lambertian.
+
+    Args:
+        photo: ``[B, 3, H, W]`` linear radiance, lit by a flash at ``camera``.
+        camera: ``[B, 3]`` camera (= flash) positions.
+        lights: ``[B, K, 3]`` target light positions (camera unchanged).
+        preset: scene conventions (plane size, falloff).
+    Returns:
+        ``[B, K, 3, H, W]`` linear radiance.
+    """
+    h, w = photo.shape[-2:]
+    ratio = plane_shading(lights, h, w, preset) / plane_shading(camera[:, None], h, w, preset)
+    return photo[:, None] * ratio
