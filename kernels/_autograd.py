@@ -54,43 +54,62 @@ def _shading_kernel(name: str, dtype: torch.dtype):
     return F, build_image_kernels(F).V3, build_image_kernels(F).render_log_l1
 
 
-def _launch_shading(name, maps, light, camera, scene, extra, output, *, grads=None, extra_adj=None, adj_output=None):
-    """Launch a shading kernel (forward, or adjoint when ``grads`` is given) in chunks.
+def _launch_chunked(kernel, maps, light, camera, scene, tail, outputs, adjoint=None) -> None:
+    """Launch a per-pixel shading kernel over the batch or row chunks of the thread split.
 
-    ``extra``: the kernel's trailing inputs (torch tensors or scalars); ``grads``: (four
-    map gradient buffers, per-chunk light buffers, per-chunk camera buffers).
+    Every shading kernel (forward, fused loss, their generated adjoints and the
+    hand-written map gradients) takes the same argument prefix: the four maps, light,
+    camera, the scene constants and the chunk offsets; ``tail``: its further inputs
+    (torch tensors or scalars); ``outputs``: its output tensors. ``adjoint``: None, or
+    ``index -> (adj_inputs, adj_outputs)`` to launch Warp's generated adjoint instead.
     """
     b, _, h, w = maps[0].shape
     device = maps[0].device
-    F, V3, kernel = _shading_kernel(name, maps[0].dtype)
+    F = warp_scalar(maps[0].dtype)
+    V3 = build_render_kernels(F).V3
     axis, chunks = _shading_chunks(b, h, device)
-    to_wp = lambda x: wp_array(x) if isinstance(x, torch.Tensor) else x  # noqa: E731
     head = [*(wp_array(t) for t in maps), wp_array(light), wp_array(camera)]
     consts = [V3(*scene.intensity), F(scene.plane_size), int(scene.inverse_square), F(scene.roughness_floor)]
-    tail = [to_wp(x) for x in extra]
-    wout = wp_array(output)
-    if grads is not None:
-        adj_maps = [wp_array(t) for t in grads[0]]
-        adj_consts = [V3(F(0.0), F(0.0), F(0.0)), F(0.0), 0, F(0.0)]
-        adj_tail = [to_wp(x) for x in extra_adj]
-        wadj_out = wp_array(adj_output)
+    tail = [wp_array(x) if isinstance(x, torch.Tensor) else x for x in tail]
+    outs = [wp_array(t) for t in outputs]
 
     def launch(index: int, start: int, count: int) -> None:
         offsets = [start, 0] if axis == "batch" else [0, start]
         dim = (count, h, w) if axis == "batch" else (b, count, w)
-        inputs = [*head, *consts, *offsets, *tail]
-        kwargs = dict(dim=dim, inputs=inputs, outputs=[wout], device=warp_device(device), stream=_stream(device))
-        if grads is None:
-            wp.launch(kernel, **kwargs)
-            return
-        adj_pos = [wp_array(grads[1][index]), wp_array(grads[2][index])]
-        wp.launch(
-            kernel, **kwargs, adjoint=True,
-            adj_inputs=[*adj_maps, *adj_pos, *adj_consts, 0, 0, *adj_tail], adj_outputs=[wadj_out],
+        kwargs = dict(
+            dim=dim, inputs=[*head, *consts, *offsets, *tail], outputs=outs,
+            device=warp_device(device), stream=_stream(device),
         )
+        if adjoint is None:
+            wp.launch(kernel, **kwargs)
+        else:
+            adj_inputs, adj_outputs = adjoint(index)
+            wp.launch(kernel, **kwargs, adjoint=True, adj_inputs=adj_inputs, adj_outputs=adj_outputs)
 
     preload(kernel, warp_device(device))
     parallel_chunks(chunks, launch)
+
+
+def _launch_shading(name, maps, light, camera, scene, extra, output, *, grads=None, extra_adj=None, adj_output=None):
+    """Launch a shading kernel (forward, or Warp's generated adjoint when ``grads`` is given).
+
+    ``extra``: the kernel's trailing inputs (torch tensors or scalars); ``grads``: (four
+    map gradient buffers, per-chunk light buffers, per-chunk camera buffers).
+    """
+    F, V3, kernel = _shading_kernel(name, maps[0].dtype)
+    if grads is None:
+        _launch_chunked(kernel, maps, light, camera, scene, extra, [output])
+        return
+    adj_maps = [wp_array(t) for t in grads[0]]
+    adj_consts = [V3(F(0.0), F(0.0), F(0.0)), F(0.0), 0, F(0.0)]
+    adj_tail = [wp_array(x) if isinstance(x, torch.Tensor) else x for x in extra_adj]
+    adj_out = [wp_array(adj_output)]
+
+    def adjoint(index: int):
+        adj_pos = [wp_array(grads[1][index]), wp_array(grads[2][index])]
+        return [*adj_maps, *adj_pos, *adj_consts, 0, 0, *adj_tail], adj_out
+
+    _launch_chunked(kernel, maps, light, camera, scene, extra, [output], adjoint)
 
 
 def _maps_backward(name, maps, light, camera, scene, extra, cotangent):
@@ -99,29 +118,9 @@ def _maps_backward(name, maps, light, camera, scene, extra, cotangent):
     ``cotangent``: ``[B*K, 3, H, W]`` for "render", ``[B, H, W]`` for "loss"; ``extra``:
     the forward kernel's trailing inputs. Returns fresh gradient tensors.
     """
-    b, _, h, w = maps[0].shape
-    device = maps[0].device
-    F = warp_scalar(maps[0].dtype)
-    V3 = build_render_kernels(F).V3
-    kernel = getattr(build_grad_kernels(F), name)
+    kernel = getattr(build_grad_kernels(warp_scalar(maps[0].dtype)), name)
     grads = [torch.empty_like(t) for t in maps]
-    axis, chunks = _shading_chunks(b, h, device)
-    to_wp = lambda x: wp_array(x) if isinstance(x, torch.Tensor) else x  # noqa: E731
-    head = [*(wp_array(t) for t in maps), wp_array(light), wp_array(camera)]
-    consts = [V3(*scene.intensity), F(scene.plane_size), int(scene.inverse_square), F(scene.roughness_floor)]
-    tail = [*(to_wp(x) for x in extra), wp_array(cotangent.contiguous())]
-    outs = [wp_array(g) for g in grads]
-
-    def launch(_index: int, start: int, count: int) -> None:
-        offsets = [start, 0] if axis == "batch" else [0, start]
-        dim = (count, h, w) if axis == "batch" else (b, count, w)
-        wp.launch(
-            kernel, dim=dim, inputs=[*head, *consts, *offsets, *tail], outputs=outs,
-            device=warp_device(device), stream=_stream(device),
-        )
-
-    preload(kernel, warp_device(device))
-    parallel_chunks(chunks, launch)
+    _launch_chunked(kernel, maps, light, camera, scene, [*extra, cotangent.contiguous()], grads)
     return grads
 
 
