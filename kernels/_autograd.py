@@ -90,37 +90,63 @@ def _launch_chunked(kernel, maps, light, camera, scene, tail, outputs, adjoint=N
     parallel_chunks(chunks, launch)
 
 
-def _launch_shading(name, maps, light, camera, scene, extra, output, *, grads=None, extra_adj=None, adj_output=None):
+def _launch_shading(
+    name, maps, light, camera, scene, extra, output, fresnel=None, *, grads=None, extra_adj=None, adj_output=None
+):
     """Launch a shading kernel (forward, or Warp's generated adjoint when ``grads`` is given).
 
-    ``extra``: the kernel's trailing inputs (torch tensors or scalars); ``grads``: (four
-    map gradient buffers, per-chunk light buffers, per-chunk camera buffers).
+    ``extra``: the kernel's trailing inputs (torch tensors or scalars); ``fresnel``: None,
+    or a ``[B*K, H, W]`` buffer the forward fills with its Fresnel weights for
+    ``_maps_backward``; ``grads``: (four map gradient buffers, per-chunk light buffers,
+    per-chunk camera buffers).
     """
     F, V3, kernel = _shading_kernel(name, maps[0].dtype)
+    store = fresnel is not None
+    tail = [*extra, int(store)]
+    outputs = [output, fresnel if store else _placeholder(maps[0])]
     if grads is None:
-        _launch_chunked(kernel, maps, light, camera, scene, extra, [output])
+        _launch_chunked(kernel, maps, light, camera, scene, tail, outputs)
         return
     adj_maps = [wp_array(t) for t in grads[0]]
     adj_consts = [V3(F(0.0), F(0.0), F(0.0)), F(0.0), 0, F(0.0)]
-    adj_tail = [wp_array(x) if isinstance(x, torch.Tensor) else x for x in extra_adj]
-    adj_out = [wp_array(adj_output)]
+    adj_tail = [wp_array(x) if isinstance(x, torch.Tensor) else x for x in extra_adj] + [0]
+    adj_out = [wp_array(adj_output), wp_array(_placeholder(maps[0]))]
 
     def adjoint(index: int):
         adj_pos = [wp_array(grads[1][index]), wp_array(grads[2][index])]
         return [*adj_maps, *adj_pos, *adj_consts, 0, 0, *adj_tail], adj_out
 
-    _launch_chunked(kernel, maps, light, camera, scene, extra, [output], adjoint)
+    _launch_chunked(kernel, maps, light, camera, scene, tail, outputs, adjoint)
 
 
-def _maps_backward(name, maps, light, camera, scene, extra, cotangent):
+def _placeholder(like: torch.Tensor) -> torch.Tensor:
+    """A 1x1x1 stand-in for the Fresnel buffer when the kernel does not write it."""
+    return torch.zeros((1, 1, 1), dtype=like.dtype, device=like.device)
+
+
+def _fresnel_buffer(ctx, maps, num_lights: int) -> torch.Tensor | None:
+    """``[B*K, H, W]`` for the forward's Fresnel weights when the backward will take the
+    map-only path (some map needs a gradient, no position does), else None.
+
+    The weights depend on the positions only; keeping them (4 bytes per pixel and light)
+    spares the map-gradient kernel an exp2 per pixel and light, ~15% of its time on the
+    CPU (kernels/DESIGN.md)."""
+    if any(ctx.needs_input_grad[:4]) and not (ctx.needs_input_grad[4] or ctx.needs_input_grad[5]):
+        b, _, h, w = maps[0].shape
+        return torch.empty((b * num_lights, h, w), dtype=maps[0].dtype, device=maps[0].device)
+    return None
+
+
+def _maps_backward(name, maps, light, camera, scene, extra, fresnel, cotangent):
     """Hand-written gradients of the four maps only (light and camera get none).
 
     ``cotangent``: ``[B*K, 3, H, W]`` for "render", ``[B, H, W]`` for "loss"; ``extra``:
-    the forward kernel's trailing inputs. Returns fresh gradient tensors.
+    the forward kernel's trailing inputs; ``fresnel``: the forward's Fresnel weights.
+    Returns fresh gradient tensors.
     """
     kernel = getattr(build_grad_kernels(warp_scalar(maps[0].dtype)), name)
     grads = [torch.empty_like(t) for t in maps]
-    _launch_chunked(kernel, maps, light, camera, scene, [*extra, cotangent.contiguous()], grads)
+    _launch_chunked(kernel, maps, light, camera, scene, [*extra, fresnel, cotangent.contiguous()], grads)
     return grads
 
 
@@ -154,17 +180,20 @@ class RenderFunction(torch.autograd.Function):
         light, camera = light.contiguous(), camera.contiguous()
         b, _, h, w = diffuse.shape
         out = torch.empty((b, light.shape[1], 3, h, w), dtype=diffuse.dtype, device=diffuse.device)
-        _launch_shading("render", maps, light, camera, scene, [], out.view(-1, 3, h, w))
+        fresnel = _fresnel_buffer(ctx, maps, light.shape[1])
+        _launch_shading("render", maps, light, camera, scene, [], out.view(-1, 3, h, w), fresnel)
         ctx.scene = scene
-        ctx.save_for_backward(*maps, light, camera, out)
+        ctx.save_for_backward(*maps, light, camera, out, fresnel)
         return out
 
     @staticmethod
     def backward(ctx, grad_out):
-        *maps, light, camera, out = ctx.saved_tensors
+        *maps, light, camera, out, fresnel = ctx.saved_tensors
         h, w = out.shape[-2:]
         if not (ctx.needs_input_grad[4] or ctx.needs_input_grad[5]):
-            grads = _maps_backward("render", maps, light, camera, ctx.scene, [], grad_out.reshape(-1, 3, h, w))
+            grads = _maps_backward(
+                "render", maps, light, camera, ctx.scene, [], fresnel, grad_out.reshape(-1, 3, h, w)
+            )
             return (*grads, None, None, None)
         grads, g_light, g_camera = _shading_backward(
             "render", maps, light, camera, ctx.scene, [], [], out.view(-1, 3, h, w), grad_out.reshape(-1, 3, h, w)
@@ -184,17 +213,20 @@ class RenderLogL1Function(torch.autograd.Function):
         target = target.detach().contiguous().view(-1, 3, h, w)
         partial = torch.empty((b, h, w), dtype=diffuse.dtype, device=diffuse.device)
         F = warp_scalar(diffuse.dtype)
-        _launch_shading("loss", maps, light, camera, scene, [target, F(eps)], partial)
+        fresnel = _fresnel_buffer(ctx, maps, light.shape[1])
+        _launch_shading("loss", maps, light, camera, scene, [target, F(eps)], partial, fresnel)
         ctx.scene, ctx.eps = scene, eps
-        ctx.save_for_backward(*maps, light, camera, target, partial)
+        ctx.save_for_backward(*maps, light, camera, target, partial, fresnel)
         return partial
 
     @staticmethod
     def backward(ctx, grad_partial):
-        *maps, light, camera, target, partial = ctx.saved_tensors
+        *maps, light, camera, target, partial, fresnel = ctx.saved_tensors
         F = warp_scalar(partial.dtype)
         if not (ctx.needs_input_grad[4] or ctx.needs_input_grad[5]):
-            grads = _maps_backward("loss", maps, light, camera, ctx.scene, [target, F(ctx.eps)], grad_partial)
+            grads = _maps_backward(
+                "loss", maps, light, camera, ctx.scene, [target, F(ctx.eps)], fresnel, grad_partial
+            )
             return (*grads, None, None, None, None, None)
         # The target takes no gradient; Warp still wants a buffer for its adjoint.
         grads, g_light, g_camera = _shading_backward(

@@ -53,13 +53,15 @@ def build_grad_kernels(F) -> SimpleNamespace:
         rough_floor: F,
         b_offset: int,
         row_offset: int,
+        fresnel: wp.array3d(dtype=F),
         grad_out: wp.array4d(dtype=F),
         g_diffuse: wp.array4d(dtype=F),
         g_normal: wp.array4d(dtype=F),
         g_roughness: wp.array4d(dtype=F),
         g_specular: wp.array4d(dtype=F),
     ):
-        # grad_out: [B*K, 3, H, W] cotangent of the rendering.
+        # grad_out: [B*K, 3, H, W] cotangent of the rendering; fresnel: [B*K, H, W] the
+        # forward's Fresnel weights.
         bb, ii, j = wp.tid()
         b = bb + b_offset
         i = ii + row_offset
@@ -76,7 +78,7 @@ def build_grad_kernels(F) -> SimpleNamespace:
             u = brdf.load_rgb(grad_out, row, i, j)
             radiance, a_rho, a_f0, a_rough, a_n = grad.radiance_and_map_grads(
                 p, brdf.load_position(light, b, k), brdf.load_position(camera, b, k),
-                n, rho_d, f0, rough, intensity, inverse_square, rough_floor, u, 0, zero, F(0.0),
+                n, rho_d, f0, rough, intensity, inverse_square, rough_floor, fresnel[row, i, j], u, 0, zero, F(0.0),
             )
             g_rho += a_rho
             g_f0 += a_f0
@@ -100,6 +102,7 @@ def build_grad_kernels(F) -> SimpleNamespace:
         row_offset: int,
         target: wp.array4d(dtype=F),
         eps: F,
+        fresnel: wp.array3d(dtype=F),
         grad_partial: wp.array3d(dtype=F),
         g_diffuse: wp.array4d(dtype=F),
         g_normal: wp.array4d(dtype=F),
@@ -125,7 +128,7 @@ def build_grad_kernels(F) -> SimpleNamespace:
             row = b * num_lights + k
             radiance, a_rho, a_f0, a_rough, a_n = grad.radiance_and_map_grads(
                 p, brdf.load_position(light, b, k), brdf.load_position(camera, b, k),
-                n, rho_d, f0, rough, intensity, inverse_square, rough_floor,
+                n, rho_d, f0, rough, intensity, inverse_square, rough_floor, fresnel[row, i, j],
                 V3(g, F(0.0), F(0.0)), 1, brdf.load_rgb(target, row, i, j), eps,
             )
             g_rho += a_rho

@@ -84,10 +84,13 @@ def build_image_kernels(F) -> SimpleNamespace:
         row_offset: int,
         target: wp.array4d(dtype=F),
         eps: F,
+        store_fresnel: int,
         partial: wp.array3d(dtype=F),
+        fresnel: wp.array3d(dtype=F),
     ):
         # Renders pixel (b, i, j) under the K lights and sums |log(x + eps) - log(y + eps)|
-        # over lights and channels without storing the rendering (fused: no [B,K,3,H,W]).
+        # over lights and channels without storing the rendering (fused: no [B,K,3,H,W]);
+        # fresnel: as in the render kernel.
         bb, ii, j = wp.tid()
         b = bb + b_offset
         i = ii + row_offset
@@ -96,11 +99,13 @@ def build_image_kernels(F) -> SimpleNamespace:
         n = brdf.safe_normalize(m)
         s = F(0.0)
         for k in range(num_lights):
-            radiance = brdf.point_light_radiance(
+            radiance, w = brdf.point_light_radiance(
                 p, brdf.load_position(light, b, k), brdf.load_position(camera, b, k),
                 n, rho_d, f0, rough, intensity, inverse_square, rough_floor,
             )
             row = b * num_lights + k
+            if store_fresnel != 0:
+                fresnel[row, i, j] = w
             for c in range(3):
                 # log(x + eps) - log(y + eps) as one log of the ratio: half the logs
                 # (the costliest operation here), and no less accurate.

@@ -39,8 +39,12 @@ def build_render_kernels(F) -> SimpleNamespace:
         rough_floor: F,
         b_offset: int,
         row_offset: int,
+        store_fresnel: int,
         out: wp.array4d(dtype=F),
+        fresnel: wp.array3d(dtype=F),
     ):
+        # fresnel: [B*K, H, W] Fresnel weights for the map gradient kernels, written only
+        # when store_fresnel is set (otherwise it may be a placeholder array).
         bb, ii, j = wp.tid()
         b = bb + b_offset
         i = ii + row_offset
@@ -48,7 +52,7 @@ def build_render_kernels(F) -> SimpleNamespace:
         p, rho_d, f0, m, rough = brdf.load_pixel(diffuse, normal, roughness, specular, b, i, j, plane_size)
         n = brdf.safe_normalize(m)
         for k in range(num_lights):
-            radiance = brdf.point_light_radiance(
+            radiance, w = brdf.point_light_radiance(
                 p, brdf.load_position(light, b, k), brdf.load_position(camera, b, k),
                 n, rho_d, f0, rough, intensity, inverse_square, rough_floor,
             )
@@ -56,6 +60,8 @@ def build_render_kernels(F) -> SimpleNamespace:
             out[row, 0, i, j] = radiance[0]
             out[row, 1, i, j] = radiance[1]
             out[row, 2, i, j] = radiance[2]
+            if store_fresnel != 0:
+                fresnel[row, i, j] = w
 
     @wp.kernel(module=module, enable_backward=False)  # geometry only: never differentiated
     def lvh_kernel(

@@ -56,8 +56,13 @@ def build_brdf(F) -> SimpleNamespace:
         return a2 / (F(PI) * d * d)
 
     @wp.func
-    def fresnel_schlick_sg(f0: V3, v_dot_h: F):
-        w = wp.pow(F(2.0), (F(FRESNEL_A) * v_dot_h + F(FRESNEL_B)) * v_dot_h)
+    def fresnel_weight(v_dot_h: F):
+        """w of F = F0 + (1 - F0) w. It depends on the positions only, not on the maps,
+        so the map gradient kernels can reuse the forward's (``point_light_radiance``)."""
+        return wp.pow(F(2.0), (F(FRESNEL_A) * v_dot_h + F(FRESNEL_B)) * v_dot_h)
+
+    @wp.func
+    def fresnel_schlick_sg(f0: V3, w: F):
         return f0 + (V3(F(1.0), F(1.0), F(1.0)) - f0) * w
 
     @wp.func
@@ -67,7 +72,8 @@ def build_brdf(F) -> SimpleNamespace:
 
     @wp.func
     def cook_torrance(n: V3, l: V3, v: V3, rho_d: V3, f0: V3, rough: F, rough_floor: F):
-        """BRDF times cosine, f * (n.l), for unit n, l, v; returns linear RGB."""
+        """BRDF times cosine, f * (n.l), for unit n, l, v; returns (linear RGB, the
+        Fresnel weight w)."""
         h = safe_normalize(l + v)
         n_dot_l = wp.max(wp.dot(n, l), F(0.0))
         n_dot_v = wp.max(wp.dot(n, v), F(0.0))
@@ -77,11 +83,12 @@ def build_brdf(F) -> SimpleNamespace:
         alpha = r * r
         k = alpha * F(0.5)
         d = ggx_ndf(n_dot_h, alpha)
-        fr = fresnel_schlick_sg(f0, v_dot_h)
+        w = fresnel_weight(v_dot_h)
+        fr = fresnel_schlick_sg(f0, w)
         vis = smith_schlick_g1_over_c(n_dot_l, k) * smith_schlick_g1_over_c(n_dot_v, k) * F(0.25)
         one = V3(F(1.0), F(1.0), F(1.0))
         diffuse = wp.cw_mul(rho_d, one - f0) * F(INV_PI)
-        return (diffuse + fr * (d * vis)) * n_dot_l
+        return (diffuse + fr * (d * vis)) * n_dot_l, w
 
     @wp.func
     def load_rgb(a: wp.array4d(dtype=F), b: int, i: int, j: int):
@@ -115,15 +122,17 @@ def build_brdf(F) -> SimpleNamespace:
         p: V3, light_pos: V3, camera_pos: V3, n: V3, rho_d: V3, f0: V3, rough: F,
         intensity: V3, inverse_square: int, rough_floor: F,
     ):
-        """Linear radiance leaving plane point p towards the camera, lit by a point light."""
+        """Linear radiance leaving plane point p towards the camera, lit by a point light,
+        and the Fresnel weight w (``fresnel_weight``)."""
         to_light = light_pos - p
         dist2 = wp.dot(to_light, to_light) + F(NORMALIZE_EPS)
         l = to_light / wp.sqrt(dist2)
         v = safe_normalize(camera_pos - p)
-        radiance = wp.cw_mul(cook_torrance(n, l, v, rho_d, f0, rough, rough_floor), intensity)
+        f_cos, w = cook_torrance(n, l, v, rho_d, f0, rough, rough_floor)
+        radiance = wp.cw_mul(f_cos, intensity)
         if inverse_square != 0:
             radiance = radiance / dist2
-        return radiance
+        return radiance, w
 
     return SimpleNamespace(
         V3=V3,
@@ -134,6 +143,7 @@ def build_brdf(F) -> SimpleNamespace:
         point_light_radiance=point_light_radiance,
         safe_normalize=safe_normalize,
         ggx_ndf=ggx_ndf,
+        fresnel_weight=fresnel_weight,
         fresnel_schlick_sg=fresnel_schlick_sg,
         smith_schlick_g1_over_c=smith_schlick_g1_over_c,
         cook_torrance=cook_torrance,

@@ -27,7 +27,7 @@ from types import SimpleNamespace
 
 import warp as wp
 
-from kernels.brdf import FRESNEL_A, FRESNEL_B, INV_PI, NORMALIZE_EPS, PI, build_brdf
+from kernels.brdf import INV_PI, NORMALIZE_EPS, PI, build_brdf
 
 __all__ = ["build_brdf_grad"]
 
@@ -54,13 +54,15 @@ def build_brdf_grad(F) -> SimpleNamespace:
     @wp.func
     def radiance_and_map_grads(
         p: V3, light_pos: V3, camera_pos: V3, n: V3, rho_d: V3, f0: V3, rough: F,
-        intensity: V3, inverse_square: int, rough_floor: F, u: V3, log_l1: int, target: V3, eps: F,
+        intensity: V3, inverse_square: int, rough_floor: F, w: F, u: V3, log_l1: int, target: V3, eps: F,
     ):
         """Map gradients of one light's radiance at one pixel, for unit normal ``n``.
 
         The cotangent of the radiance is ``u`` (``log_l1`` = 0), or, for the fused
         rendering loss (``log_l1`` = 1), that of ``u[0] * sum_c |log(x_c + eps) -
         log(target_c + eps)|``, formed here from the radiance x computed on the way.
+        ``w``: the Fresnel weight the forward pass computed (``brdf.fresnel_weight``;
+        positions only, so reused rather than recomputed: exp2 was ~15% of this function).
         Returns (radiance, dL/d rho_d, dL/d F0, dL/d roughness, dL/d n)."""
         to_light = light_pos - p
         dist2 = wp.dot(to_light, to_light) + F(NORMALIZE_EPS)
@@ -73,14 +75,12 @@ def build_brdf_grad(F) -> SimpleNamespace:
         ndl = wp.max(ndl_raw, F(0.0))
         ndv = wp.max(ndv_raw, F(0.0))
         ndh = wp.max(ndh_raw, F(0.0))
-        vdh = wp.max(wp.dot(v, h), F(0.0))
         r = wp.max(rough, rough_floor)
         alpha = r * r
         k = alpha * F(0.5)
         a2 = alpha * alpha
         dd = ndh * ndh * (a2 - F(1.0)) + F(1.0)
         d = a2 / (F(PI) * dd * dd)
-        w = wp.pow(F(2.0), (F(FRESNEL_A) * vdh + F(FRESNEL_B)) * vdh)
         one = V3(F(1.0), F(1.0), F(1.0))
         fr = f0 + (one - f0) * w
         big_a = ndl * (F(1.0) - k) + k

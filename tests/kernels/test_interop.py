@@ -10,7 +10,8 @@ import torch
 import warp as wp
 
 import kernels
-from kernels import _warp
+from kernels import _warp, reference
+from kernels.brdf import FRESNEL_A, FRESNEL_B
 
 #: Position gradients of a B=1 launch split over image rows, float32, relative to the
 #: largest entry: each row chunk sums its light/camera gradient over its own pixels, so
@@ -46,6 +47,10 @@ def test_wp_array_is_a_zero_copy_view(dtype, device):
     assert float(t.abs().max()) == 0.0
 
 
+#: float32 exp2 and unit vectors recomputed in a different order: a few ulp apart.
+FRESNEL_RTOL = 1e-5
+
+
 def test_render_saves_inputs_without_copies_and_writes_output_in_place(render_inputs):
     inputs = render_inputs()
     out = kernels.render(*inputs)
@@ -53,7 +58,27 @@ def test_render_saves_inputs_without_copies_and_writes_output_in_place(render_in
     for name, t, s in zip(("diffuse", "normal", "roughness", "specular"), inputs, saved):
         assert s.data_ptr() == t.data_ptr(), f"{name} was copied"
     assert saved[4].data_ptr() == inputs[4].data_ptr()  # [B, K, 3] light: already contiguous
-    assert saved[-1].data_ptr() == out.data_ptr()  # the kernel wrote the returned tensor itself
+    assert saved[6].data_ptr() == out.data_ptr()  # the kernel wrote the returned tensor itself
+
+
+def test_fresnel_weights_are_kept_only_for_the_map_gradient_path(render_inputs):
+    d, n, r, s, light, camera = [t.detach() for t in render_inputs(b=2, h=5, w=7)]
+    # Positions need a gradient: the generated-adjoint path, nothing extra kept.
+    out = kernels.render(d.requires_grad_(), n, r, s, light.clone().requires_grad_(), camera)
+    assert out.grad_fn.saved_tensors[-1] is None
+    # Maps only: the forward keeps w = 2^((a v.h + b) v.h) per pixel and light.
+    out = kernels.render(d, n, r, s, light, camera)
+    fresnel = out.grad_fn.saved_tensors[-1]
+    b, k = out.shape[:2]
+    assert fresnel.shape == (b * k, 5, 7)
+    x = reference.plane_points(5, 7, 4.0)
+    lh = light[..., None, None] - x
+    cv = camera[..., None, None] - x
+    l, v = lh / lh.norm(dim=2, keepdim=True), cv / cv.norm(dim=2, keepdim=True)
+    h = (l + v) / (l + v).norm(dim=2, keepdim=True)
+    vdh = (v * h).sum(2).clamp_min(0)
+    expected = torch.exp2((FRESNEL_A * vdh + FRESNEL_B) * vdh).flatten(0, 1)
+    torch.testing.assert_close(fresnel, expected, rtol=FRESNEL_RTOL, atol=0)
 
 
 def test_translate_saves_inputs_without_copies():
