@@ -59,8 +59,9 @@ class TrainConfig:
         map_weight, render_weight, normal_weight: loss weights (``estimator.losses``).
         init_from: a saved estimator folder (``save_pretrained``) whose weights start the
             run, e.g. the shipped model for a fine-tuning run; its architecture must equal
-            ``model``. Ignored when resuming (the checkpoint already holds the weights);
-            the optimizer and schedule start fresh.
+            ``model``. A resumed run of the same fine-tuning continues from its
+            checkpoint; resuming a checkpoint of another run is refused. The optimizer
+            and schedule start fresh.
         out_dir: where the final model, loss curve and history are exported.
         ckpt_dir: training checkpoints (keep it outside the repository).
         ckpt_every, log_every: in steps.
@@ -209,7 +210,14 @@ def main(cfg: TrainConfig) -> Path:
     start, history = 0, []
     folder = latest_checkpoint(ckpt_dir) if cfg.resume else None
     if folder is not None:
-        saved = EstimatorConfig(**read_trainer_state(folder)["config"]["model"])
+        saved_cfg = read_trainer_state(folder)["config"]
+        if cfg.init_from is not None and saved_cfg.get("init_from") != cfg.init_from:
+            # Resuming would silently drop --init-from (the checkpoint holds other weights).
+            raise ValueError(
+                f"{folder}: a checkpoint of another run (init_from={saved_cfg.get('init_from')!r}) is in ckpt_dir; "
+                f"use a fresh --ckpt-dir for --init-from {cfg.init_from}, or --no-resume"
+            )
+        saved = EstimatorConfig(**saved_cfg["model"])
         if saved != cfg.model:
             raise ValueError(f"{folder}: checkpoint architecture {saved} differs from the requested {cfg.model}")
         state = load_checkpoint(folder, model=model, optimizer=optimizer, scheduler=scheduler)

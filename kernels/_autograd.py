@@ -124,14 +124,16 @@ def _placeholder(like: torch.Tensor) -> torch.Tensor:
     return torch.zeros((1, 1, 1), dtype=like.dtype, device=like.device)
 
 
-def _fresnel_buffer(ctx, maps, num_lights: int) -> torch.Tensor | None:
+def _fresnel_buffer(ctx, maps, num_lights: int, grad_enabled: bool) -> torch.Tensor | None:
     """``[B*K, H, W]`` for the forward's Fresnel weights when the backward will take the
     map-only path (some map needs a gradient, no position does), else None.
+    ``grad_enabled``: torch's grad mode at the call (inside ``forward`` it is always off,
+    and ``ctx.needs_input_grad`` does not see ``torch.no_grad()``).
 
     The weights depend on the positions only; keeping them (4 bytes per pixel and light)
     spares the map-gradient kernel an exp2 per pixel and light, ~15% of its time on the
     CPU (kernels/DESIGN.md)."""
-    if any(ctx.needs_input_grad[:4]) and not (ctx.needs_input_grad[4] or ctx.needs_input_grad[5]):
+    if grad_enabled and any(ctx.needs_input_grad[:4]) and not (ctx.needs_input_grad[4] or ctx.needs_input_grad[5]):
         b, _, h, w = maps[0].shape
         return torch.empty((b * num_lights, h, w), dtype=maps[0].dtype, device=maps[0].device)
     return None
@@ -172,15 +174,16 @@ def _shading_backward(name, maps, light, camera, scene, extra, extra_adj, output
 
 
 class RenderFunction(torch.autograd.Function):
-    """maps, light [B,K,3], camera [B,K,3], Scene -> radiance [B,K,3,H,W]."""
+    """maps, light [B,K,3], camera [B,K,3], Scene, grad_enabled -> radiance [B,K,3,H,W]
+    (``grad_enabled``: ``torch.is_grad_enabled()`` at the call)."""
 
     @staticmethod
-    def forward(ctx, diffuse, normal, roughness, specular, light, camera, scene: Scene):
+    def forward(ctx, diffuse, normal, roughness, specular, light, camera, scene: Scene, grad_enabled: bool):
         maps = [t.contiguous() for t in (diffuse, normal, roughness, specular)]
         light, camera = light.contiguous(), camera.contiguous()
         b, _, h, w = diffuse.shape
         out = torch.empty((b, light.shape[1], 3, h, w), dtype=diffuse.dtype, device=diffuse.device)
-        fresnel = _fresnel_buffer(ctx, maps, light.shape[1])
+        fresnel = _fresnel_buffer(ctx, maps, light.shape[1], grad_enabled)
         _launch_shading("render", maps, light, camera, scene, [], out.view(-1, 3, h, w), fresnel)
         ctx.scene = scene
         ctx.save_for_backward(*maps, light, camera, out, fresnel)
@@ -194,26 +197,29 @@ class RenderFunction(torch.autograd.Function):
             grads = _maps_backward(
                 "render", maps, light, camera, ctx.scene, [], fresnel, grad_out.reshape(-1, 3, h, w)
             )
-            return (*grads, None, None, None)
+            return (*grads, None, None, None, None)
         grads, g_light, g_camera = _shading_backward(
             "render", maps, light, camera, ctx.scene, [], [], out.view(-1, 3, h, w), grad_out.reshape(-1, 3, h, w)
         )
-        return (*grads, g_light, g_camera, None)
+        return (*grads, g_light, g_camera, None, None)
 
 
 class RenderLogL1Function(torch.autograd.Function):
     """maps, light, camera, target [B,K,3,H,W], Scene, eps -> per-pixel sums [B,H,W] of
-    |log(render + eps) - log(target + eps)| over lights and channels (target: no grad)."""
+    |log(render + eps) - log(target + eps)| over lights and channels (target: no grad;
+    ``grad_enabled`` as in ``RenderFunction``)."""
 
     @staticmethod
-    def forward(ctx, diffuse, normal, roughness, specular, light, camera, target, scene: Scene, eps: float):
+    def forward(
+        ctx, diffuse, normal, roughness, specular, light, camera, target, scene: Scene, eps: float, grad_enabled: bool
+    ):
         maps = [t.contiguous() for t in (diffuse, normal, roughness, specular)]
         light, camera = light.contiguous(), camera.contiguous()
         b, _, h, w = diffuse.shape
         target = target.detach().contiguous().view(-1, 3, h, w)
         partial = torch.empty((b, h, w), dtype=diffuse.dtype, device=diffuse.device)
         F = warp_scalar(diffuse.dtype)
-        fresnel = _fresnel_buffer(ctx, maps, light.shape[1])
+        fresnel = _fresnel_buffer(ctx, maps, light.shape[1], grad_enabled)
         _launch_shading("loss", maps, light, camera, scene, [target, F(eps)], partial, fresnel)
         ctx.scene, ctx.eps = scene, eps
         ctx.save_for_backward(*maps, light, camera, target, partial, fresnel)
@@ -227,13 +233,13 @@ class RenderLogL1Function(torch.autograd.Function):
             grads = _maps_backward(
                 "loss", maps, light, camera, ctx.scene, [target, F(ctx.eps)], fresnel, grad_partial
             )
-            return (*grads, None, None, None, None, None)
+            return (*grads, None, None, None, None, None, None)
         # The target takes no gradient; Warp still wants a buffer for its adjoint.
         grads, g_light, g_camera = _shading_backward(
             "loss", maps, light, camera, ctx.scene, [target, F(ctx.eps)],
             [torch.zeros_like(target), F(0.0)], partial, grad_partial,
         )
-        return (*grads, g_light, g_camera, None, None, None)
+        return (*grads, g_light, g_camera, None, None, None, None)
 
 
 class RowLossFunction(torch.autograd.Function):

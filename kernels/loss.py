@@ -119,7 +119,9 @@ def rendering_loss(
         raise ValueError(f"target must be > -eps ({eps}) for the log; found {float(target.detach().min()):.4g}")
     p = resolve_preset(preset, **overrides)
     scene = Scene(p.plane_size, p.intensity, p.inverse_square, p.roughness_floor)
-    partial = RenderLogL1Function.apply(diffuse, normal, roughness, specular, light, camera, target, scene, eps)
+    partial = RenderLogL1Function.apply(
+        diffuse, normal, roughness, specular, light, camera, target, scene, eps, torch.is_grad_enabled()
+    )
     return _mean(partial, b * k * 3 * h * w)
 
 

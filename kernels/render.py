@@ -91,7 +91,7 @@ def render(
     camera = broadcast_positions("camera_pos", camera_pos, b, diffuse, num=light.shape[1])
     p = resolve_preset(preset, **overrides)
     scene = Scene(p.plane_size, p.intensity, p.inverse_square, p.roughness_floor)
-    out = RenderFunction.apply(diffuse, normal, roughness, specular, light, camera, scene)
+    out = RenderFunction.apply(diffuse, normal, roughness, specular, light, camera, scene, torch.is_grad_enabled())
     if return_lvh:
         return out, _lvh(light.detach(), camera.detach(), p.plane_size, h, w)
     return out

@@ -164,6 +164,8 @@ class RelightDiffusion(nn.Module):
         the tone-mapped photo, or (``base="lambertian"``) its Lambertian relighting under
         ``light`` ``[N, 3]``, tone-mapped."""
         if self.config.base == "lambertian":
+            # The training groups are rendered with the dgrsise preset (falloff 1); a
+            # model for another preset's data would need the falloff in its config.
             preset = get_preset("dgrsise").with_overrides(plane_size=self.config.plane_size)
             photo = lambertian_relight(photo, camera, light[:, None], preset)[:, 0]
         return self.tonemapped(photo)

@@ -129,6 +129,17 @@ def test_init_from_refuses_a_missing_folder_or_another_architecture(tmp_path):
         main(_tiny_train_config(tmp_path / "b", steps=1, model=other, init_from=str(source)))
 
 
+def test_init_from_refuses_to_resume_another_run(tmp_path):
+    source = main(_tiny_train_config(tmp_path / "a", steps=1))
+    main(_tiny_train_config(tmp_path / "b", steps=1))  # a checkpoint without init_from
+    with pytest.raises(ValueError, match="fresh --ckpt-dir"):
+        main(_tiny_train_config(tmp_path / "b", steps=2, init_from=str(source)))
+    # The same fine-tuning run resumes normally.
+    main(_tiny_train_config(tmp_path / "c", steps=1, init_from=str(source)))
+    main(_tiny_train_config(tmp_path / "c", steps=2, init_from=str(source)))
+    assert latest_checkpoint(tmp_path / "c" / "ckpt").name.endswith("0000002")
+
+
 def test_normal_weight_scales_only_the_normal_term():
     g = torch.Generator().manual_seed(0)
     maps = lambda: Material.from_stacked(torch.rand(2, 10, 8, 8, generator=g))  # noqa: E731

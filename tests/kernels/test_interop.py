@@ -81,6 +81,21 @@ def test_fresnel_weights_are_kept_only_for_the_map_gradient_path(render_inputs):
     torch.testing.assert_close(fresnel, expected, rtol=FRESNEL_RTOL, atol=0)
 
 
+def test_no_fresnel_buffer_under_no_grad(render_inputs, monkeypatch):
+    # Maps with requires_grad, rendered under torch.no_grad(): no backward can follow, so
+    # the forward must not allocate the [B*K, H, W] buffer.
+    from kernels import _autograd
+
+    d, n, r, s, light, camera = [t.detach() for t in render_inputs(b=2, h=5, w=7)]
+    kept = []
+    original = _autograd._fresnel_buffer
+    monkeypatch.setattr(_autograd, "_fresnel_buffer", lambda *a: kept.append(original(*a)) or kept[-1])
+    with torch.no_grad():
+        kernels.render(d.requires_grad_(), n, r, s, light, camera)
+    kernels.render(d, n, r, s, light, camera)
+    assert kept[0] is None and kept[1] is not None
+
+
 def test_translate_saves_inputs_without_copies():
     feats = torch.randn(2, 4, 6, 6, requires_grad=True)
     offs = torch.tensor([[0.3, -0.4], [1.2, 0.7]], requires_grad=True)

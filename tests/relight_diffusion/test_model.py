@@ -168,3 +168,22 @@ def test_lambertian_base_is_checked_and_legacy_configs_use_the_photo():
     legacy = RelightConfig().to_dict()
     del legacy["base"]
     assert RelightConfig.from_dict(legacy).base == "photo"
+
+
+def test_objective_and_condition_use_the_same_residual_base(tiny_model, group_batch, monkeypatch):
+    # The training target x0 (objective) and the UNet's extra channels (encode_condition)
+    # must be relative to the same base: same photo, lights and cameras, one per target.
+    calls = []
+    original = tiny_model.residual_base
+
+    def spy(photo, light, camera):
+        calls.append((photo.clone(), light.clone(), camera.clone()))
+        return original(photo, light, camera)
+
+    monkeypatch.setattr(tiny_model, "residual_base", spy)
+    batch = group_batch(b=1, v=4)
+    diffusion_loss(tiny_model, make_train_scheduler(), batch, generator=torch.Generator().manual_seed(0))
+    assert len(calls) == 2
+    for a, b in zip(*calls):
+        assert torch.equal(a, b)
+    assert torch.equal(calls[0][1], batch["light"].flatten(0, 1))
