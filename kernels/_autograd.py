@@ -54,6 +54,17 @@ def _shading_kernel(name: str, dtype: torch.dtype):
     return F, build_image_kernels(F).V3, build_image_kernels(F).render_log_l1
 
 
+def _to_wp(x):
+    """Warp view of a tensor argument; scalars pass through."""
+    return wp_array(x) if isinstance(x, torch.Tensor) else x
+
+
+def _maps_only(ctx) -> bool:
+    """True when no light or camera position needs a gradient: the backward then takes the
+    hand-written map-gradient path (and the forward keeps the Fresnel weights for it)."""
+    return not (ctx.needs_input_grad[4] or ctx.needs_input_grad[5])
+
+
 def _launch_chunked(kernel, maps, light, camera, scene, tail, outputs, adjoint=None) -> None:
     """Launch a per-pixel shading kernel over the batch or row chunks of the thread split.
 
@@ -70,7 +81,7 @@ def _launch_chunked(kernel, maps, light, camera, scene, tail, outputs, adjoint=N
     axis, chunks = _shading_chunks(b, h, device)
     head = [*(wp_array(t) for t in maps), wp_array(light), wp_array(camera)]
     consts = [V3(*scene.intensity), F(scene.plane_size), int(scene.inverse_square), F(scene.roughness_floor)]
-    tail = [wp_array(x) if isinstance(x, torch.Tensor) else x for x in tail]
+    tail = [_to_wp(x) for x in tail]
     outs = [wp_array(t) for t in outputs]
 
     def launch(index: int, start: int, count: int) -> None:
@@ -109,7 +120,7 @@ def _launch_shading(
         return
     adj_maps = [wp_array(t) for t in grads[0]]
     adj_consts = [V3(F(0.0), F(0.0), F(0.0)), F(0.0), 0, F(0.0)]
-    adj_tail = [wp_array(x) if isinstance(x, torch.Tensor) else x for x in extra_adj] + [0]
+    adj_tail = [_to_wp(x) for x in extra_adj] + [0]
     adj_out = [wp_array(adj_output), wp_array(_placeholder(maps[0]))]
 
     def adjoint(index: int):
@@ -133,7 +144,7 @@ def _fresnel_buffer(ctx, maps, num_lights: int, grad_enabled: bool) -> torch.Ten
     The weights depend on the positions only; keeping them (4 bytes per pixel and light)
     spares the map-gradient kernel an exp2 per pixel and light, ~15% of its time on the
     CPU (kernels/DESIGN.md)."""
-    if grad_enabled and any(ctx.needs_input_grad[:4]) and not (ctx.needs_input_grad[4] or ctx.needs_input_grad[5]):
+    if grad_enabled and any(ctx.needs_input_grad[:4]) and _maps_only(ctx):
         b, _, h, w = maps[0].shape
         return torch.empty((b * num_lights, h, w), dtype=maps[0].dtype, device=maps[0].device)
     return None
@@ -193,7 +204,7 @@ class RenderFunction(torch.autograd.Function):
     def backward(ctx, grad_out):
         *maps, light, camera, out, fresnel = ctx.saved_tensors
         h, w = out.shape[-2:]
-        if not (ctx.needs_input_grad[4] or ctx.needs_input_grad[5]):
+        if _maps_only(ctx):
             grads = _maps_backward(
                 "render", maps, light, camera, ctx.scene, [], fresnel, grad_out.reshape(-1, 3, h, w)
             )
@@ -229,7 +240,7 @@ class RenderLogL1Function(torch.autograd.Function):
     def backward(ctx, grad_partial):
         *maps, light, camera, target, partial, fresnel = ctx.saved_tensors
         F = warp_scalar(partial.dtype)
-        if not (ctx.needs_input_grad[4] or ctx.needs_input_grad[5]):
+        if _maps_only(ctx):
             grads = _maps_backward(
                 "loss", maps, light, camera, ctx.scene, [target, F(ctx.eps)], fresnel, grad_partial
             )

@@ -19,19 +19,17 @@ from __future__ import annotations
 import torch
 
 from kernels.presets import RenderPreset
+from kernels.reference import plane_points
 
 __all__ = ["plane_shading", "lambertian_relight"]
 
 
 def plane_shading(pos: torch.Tensor, h: int, w: int, preset: RenderPreset) -> torch.Tensor:
     """``cos(theta) * falloff`` per pixel for positions ``[B, K, 3]``: ``[B, K, 1, H, W]``."""
-    s = preset.plane_size
-    dt, dev = pos.dtype, pos.device
-    # Pixel centres on the plane (SPEC section 2): row 0 at the top (+y).
-    xs = ((torch.arange(w, dtype=dt, device=dev) + 0.5) / w - 0.5) * s
-    ys = -((torch.arange(h, dtype=dt, device=dev) + 0.5) / h - 0.5) * s
-    dx = pos[..., 0, None, None] - xs[None, None, None, :]
-    dy = pos[..., 1, None, None] - ys[None, None, :, None]
+    # Pixel centres on the plane (SPEC section 2), as the renderer's twin defines them.
+    x = plane_points(h, w, preset.plane_size, dtype=pos.dtype, device=pos.device)  # [3, H, W]
+    dx = pos[..., 0, None, None] - x[0]
+    dy = pos[..., 1, None, None] - x[1]
     dz = pos[..., 2, None, None].expand(-1, -1, h, w)
     d2 = dx * dx + dy * dy + dz * dz
     shade = dz / d2.sqrt()
