@@ -8,7 +8,7 @@ import torch
 
 from matcap.errors import UsageError
 
-__all__ = ["parse_position", "positions_or_default"]
+__all__ = ["parse_position", "positions_or_default", "set_sampling"]
 
 
 def parse_position(text: str, what: str = "position") -> tuple[float, float, float]:
@@ -30,3 +30,24 @@ def positions_or_default(texts: list[str] | None, default: torch.Tensor, what: s
     if not texts:
         return default
     return torch.tensor([parse_position(t, what) for t in texts], dtype=torch.float32)
+
+
+def set_sampling(relighter, name: str, steps: int | None, samples: int | None = None) -> None:
+    """Apply ``--steps`` / ``--samples`` to a sampling relighter (diffusion).
+
+    Args:
+        relighter: a ``relight.interface.Relighter``; a sampling one has ``steps`` and
+            ``num_samples`` attributes (``relight.diffusion.DiffusionRelighter``).
+        name: its method name, for the error message.
+        steps, samples: None leaves the relighter's default.
+    Raises:
+        UsageError: a value below 1, or an option given for a method that does not sample.
+    """
+    for flag, value, attr in (("--steps", steps, "steps"), ("--samples", samples, "num_samples")):
+        if value is None:
+            continue
+        if value < 1:
+            raise UsageError(f"{flag} must be at least 1, got {value}")
+        if not hasattr(relighter, attr):
+            raise UsageError(f"{flag} applies to sampling methods (diffusion), not to {name!r}")
+        setattr(relighter, attr, value)

@@ -8,6 +8,7 @@ import shlex
 import sys
 from pathlib import Path
 
+from matcap.args import set_sampling
 from matcap.errors import UsageError
 
 __all__ = ["add_parser", "run", "EVAL_MARKER"]
@@ -35,6 +36,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="checkpoint folder of a method (repeat); default: its shipped weights")
     r.add_argument("--samples", type=int, default=1, help="samples of stochastic methods; >1 adds a "
                    "'mean of N' row (default %(default)s)")
+    r.add_argument("--steps", type=int, default=None, help="sampling steps of stochastic methods "
+                   "(default: theirs, 20 for diffusion)")
     r.add_argument("--chunk", type=int, default=4, help="materials per relight call (default %(default)s)")
     r.add_argument("--seed", type=int, default=0, help="generator seed of stochastic methods")
     r.add_argument("--overwrite", action="store_true", help="replace an output folder written by this command")
@@ -100,6 +103,10 @@ def run(args) -> int:
             if explicit or name in checkpoints:
                 raise
             print(f"skipping {name}: {exc}", file=sys.stderr)
+    if args.steps is not None:
+        for name, relighter in relighters.items():
+            if getattr(relighter, "stochastic", False):
+                set_sampling(relighter, name, args.steps)
     command = "relight " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["eval"] else None
     result = evaluate(relighters, cfg)
     with atomic_folder(args.out, overwrite=args.overwrite, marker=EVAL_MARKER) as tmp:

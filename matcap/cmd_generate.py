@@ -9,7 +9,7 @@ from pathlib import Path
 import torch
 
 from materials.lights import EVAL_CAMERA, EVAL_LIGHTS
-from matcap.args import parse_position, positions_or_default
+from matcap.args import parse_position, positions_or_default, set_sampling
 from matcap.errors import UsageError
 from matcap.outputs import write_image_pair
 
@@ -39,6 +39,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "registered one (default %(default)s)")
     p.add_argument("--checkpoint", type=Path, default=None, help="model folder (default: the shipped weights)")
     p.add_argument("--seed", type=int, default=0, help="seed of stochastic models")
+    p.add_argument("--steps", type=int, default=None, help="sampling steps of the diffusion model (default 20)")
+    p.add_argument("--samples", type=int, default=None, help="diffusion: average this many samples per light "
+                   "(lower error, proportionally slower; default 1)")
     p.add_argument("--overwrite", action="store_true", help="replace an output folder written by this command")
     p.set_defaults(run=run)
 
@@ -67,6 +70,7 @@ def run(args) -> int:
     if photo.shape[0] != 3:
         raise UsageError(f"photo {str(args.photo)!r} has {photo.shape[0]} channel(s); expected 3 (RGB)")
     relighter = get_relighter(args.model, args.checkpoint)
+    set_sampling(relighter, args.model, args.steps, args.samples)
     gen = torch.Generator().manual_seed(args.seed)
     relit = relighter.relight(photo[None], camera[None], lights[None], generator=gen)[0]
     with atomic_folder(args.out, overwrite=args.overwrite, marker=GENERATE_MARKER) as tmp:
@@ -81,6 +85,8 @@ def run(args) -> int:
             "camera": camera.tolist(),
             "lights": lights.tolist(),
             "seed": args.seed,
+            "steps": getattr(relighter, "steps", None),
+            "samples": getattr(relighter, "num_samples", None),
             "files": files,
         }
         (tmp / GENERATE_MARKER).write_text(json.dumps(info, indent=2))

@@ -187,3 +187,28 @@ def test_objective_and_condition_use_the_same_residual_base(tiny_model, group_ba
     for a, b in zip(*calls):
         assert torch.equal(a, b)
     assert torch.equal(calls[0][1], batch["light"].flatten(0, 1))
+
+
+def test_generate_cli_sampling_options(tiny_model, tmp_path, capsys):
+    """``relight generate --model diffusion --steps --samples`` reach the pipeline; the
+    options are refused for methods that do not sample, and below 1."""
+    import json
+
+    import numpy as np
+
+    from materials.io import write_exr
+    from matcap.cli import main
+
+    tiny_model.save_pretrained(tmp_path / "m")
+    photo = tmp_path / "photo.exr"
+    write_exr(photo, np.random.default_rng(0).random((16, 16, 3)).astype(np.float32))
+    base = ["generate", str(photo), "--light", "1,1,4", "--out"]
+    diffusion = ["--model", "diffusion", "--checkpoint", str(tmp_path / "m")]
+    assert main([*base, str(tmp_path / "a"), *diffusion, "--steps", "2", "--samples", "2"]) == 0
+    info = json.loads((tmp_path / "a" / "relit.json").read_text())
+    assert (info["steps"], info["samples"]) == (2, 2)
+    assert main([*base, str(tmp_path / "b"), "--model", "lambertian", "--samples", "2"]) == 2
+    assert "applies to sampling methods" in capsys.readouterr().err
+    assert main([*base, str(tmp_path / "c"), *diffusion, "--steps", "0"]) == 2
+    assert "--steps must be at least 1" in capsys.readouterr().err
+    assert not (tmp_path / "b").exists() and not (tmp_path / "c").exists()
