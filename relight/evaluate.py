@@ -39,7 +39,7 @@ from materials.lights import EVAL_CAMERA, EVAL_LIGHTS, eval_lights
 from relight import metrics
 from relight.interface import Relighter
 
-__all__ = ["EvalConfig", "EvalData", "load_eval_data", "evaluate", "write_report", "format_table", "EVAL_CROP_SEED"]
+__all__ = ["EvalConfig", "EvalData", "load_eval_data", "evaluate", "write_report", "format_table", "format_per_material", "EVAL_CROP_SEED"]
 
 #: Seed of the evaluation crops (``GroupConfig.seed``); the materials come from EVAL_SEEDS.
 EVAL_CROP_SEED = 0
@@ -202,6 +202,23 @@ def format_table(result: dict) -> str:
     return "\n".join(lines)
 
 
+def format_per_material(result: dict) -> str:
+    """Markdown table of PSNR per material (mean over its lights), one column per method.
+
+    The Table-1 PSNR is a mean over images, so a few near-perfect images (a diffuse
+    material that the Lambertian re-shading relights exactly) weigh as much as the hard
+    ones; this table shows where each method gains or loses its dB.
+    """
+    rows = result["rows"]
+    n_mat, k = len(result["seeds"]), len(result["lights"])
+    head = "| material | " + " | ".join(r["method"] for r in rows) + " |"
+    lines = [head, "|---" * (len(rows) + 1) + "|"]
+    for m in range(n_mat):
+        cells = [sum(r["per_image"]["PSNR"][m * k : (m + 1) * k]) / k for r in rows]
+        lines.append(f"| {result['seeds'][m]} | " + " | ".join(f"{c:.1f}" for c in cells) + " |")
+    return "\n".join(lines)
+
+
 def _picture(result: dict, path: Path, materials: int = 4, lights: tuple[int, ...] = (0, 4)) -> None:
     """Rows: the ``materials`` held-out materials that change most under relighting
     (largest tone-mapped MSE between the photo and its targets), each under ``lights``;
@@ -290,7 +307,7 @@ def write_report(result: dict, folder: Path, command: str | None = None) -> list
         if "std_error_corr" in r:
             md.append(f"{r['method']}: Pearson correlation between the per-pixel std across samples and the "
                       f"absolute error of the mean: {r['std_error_corr']:.3f}.")
-    md.append("")
+    md += ["", "## PSNR per material (dB, mean over the lights)", "", format_per_material(result), ""]
     paths = [folder / "relight_eval.md", folder / "relight_eval.json", folder / "relight_eval.png"]
     paths[0].write_text("\n".join(md))
     for name in result.get("spread", {}):

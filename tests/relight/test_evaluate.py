@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from relight import metrics
-from relight.evaluate import EvalConfig, evaluate, format_table, load_eval_data, write_report
+from relight.evaluate import EvalConfig, evaluate, format_per_material, format_table, load_eval_data, write_report
 from relight.interface import get_relighter
 
 
@@ -54,6 +54,12 @@ def test_table_has_one_row_per_method(tmp_path, tiny_checkpoint):
     assert all(p.is_file() for p in paths)
     blob = json.loads(paths[1].read_text())
     assert len(blob["rows"]) == 3 and blob["lights"][0] == [-2.0, 2.0, 4.0]
+    # Per-material PSNR: one line per material, each cell the mean of its 7 lights.
+    per_material = format_per_material(result).splitlines()[2:]
+    assert len(per_material) == 2
+    lamb = result["rows"][1]["per_image"]["PSNR"]
+    assert per_material[1].split("|")[3].strip() == f"{sum(lamb[7:]) / 7:.1f}"
+    assert "PSNR per material" in paths[0].read_text()
 
 
 def test_stochastic_methods_get_a_mean_row():
