@@ -1,7 +1,7 @@
 """Benchmark: relight one flash photo to the 7 evaluation lights (issue 4's target: under
 20 s on this CPU with the tiny diffusion preset), every registered relighter side by side.
 
-    python benchmarks/bench_relight.py [--threads 2] [--repeats 3] [--samples 1]
+    python benchmarks/bench_relight.py [--threads 2] [--repeats 3] [--samples 1] [--steps 20]
 
 Times ``Relighter.relight`` on one held-out procedural material's flash photo at the
 model's resolution (the shipped checkpoints), after one warm-up call; reports the median
@@ -29,6 +29,7 @@ def main() -> None:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--samples", type=int, default=1, help="diffusion samples averaged per target")
+    p.add_argument("--steps", type=int, default=None, help="diffusion sampling steps (default: the pipeline's 20)")
     p.add_argument("--methods", default="input,lambertian,bieron,diffusion")
     p.add_argument("--out", type=Path, default=Path("benchmarks/results/relight.json"))
     args = p.parse_args()
@@ -43,6 +44,8 @@ def main() -> None:
         relighter = get_relighter(name)
         if hasattr(relighter, "num_samples"):
             relighter.num_samples = args.samples
+        if args.steps is not None and hasattr(relighter, "steps"):
+            relighter.steps = args.steps
         model = getattr(getattr(relighter, "pipeline", None), "model", None)
         size = model.config.resolution if model is not None else 64
         data = load_eval_data(EvalConfig(count=1, size=size))
@@ -62,7 +65,7 @@ def main() -> None:
             "min_s": min(times), "max_s": max(times),
         }
     report = {
-        "threads": args.threads, "repeats": args.repeats, "samples": args.samples,
+        "threads": args.threads, "repeats": args.repeats, "samples": args.samples, "steps": args.steps,
         "cpu": platform.processor() or platform.machine(), "load_avg": os.getloadavg(),
         "target_s": TARGET_S, "rows": rows,
     }
