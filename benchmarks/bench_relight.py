@@ -37,15 +37,14 @@ def main() -> None:
     torch.set_num_threads(args.threads)
 
     from relight.evaluate import EvalConfig, load_eval_data
+    from matcap.args import set_sampling
     from relight.interface import get_relighter
 
     rows = {}
     for name in args.methods.split(","):
         relighter = get_relighter(name)
-        if hasattr(relighter, "num_samples"):
-            relighter.num_samples = args.samples
-        if args.steps is not None and hasattr(relighter, "steps"):
-            relighter.steps = args.steps
+        if getattr(relighter, "stochastic", False):
+            set_sampling(relighter, name, args.steps, args.samples)
         model = getattr(getattr(relighter, "pipeline", None), "model", None)
         size = model.config.resolution if model is not None else 64
         data = load_eval_data(EvalConfig(count=1, size=size))
@@ -61,11 +60,12 @@ def main() -> None:
             out = call()
             times.append(time.perf_counter() - tick)
         rows[name] = {
-            "size": size, "images": int(out.shape[1]), "median_s": statistics.median(times),
+            "size": size, "images": int(out.shape[1]), "steps": getattr(relighter, "steps", None),
+            "median_s": statistics.median(times),
             "min_s": min(times), "max_s": max(times),
         }
     report = {
-        "threads": args.threads, "repeats": args.repeats, "samples": args.samples, "steps": args.steps,
+        "threads": args.threads, "repeats": args.repeats, "samples": args.samples,
         "cpu": platform.processor() or platform.machine(), "load_avg": os.getloadavg(),
         "target_s": TARGET_S, "rows": rows,
     }

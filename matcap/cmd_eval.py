@@ -85,6 +85,8 @@ def run(args) -> int:
     from relight.evaluate import EvalConfig, evaluate, format_table, write_report
     from relight.interface import get_relighter, relighter_names
 
+    if args.steps is not None and args.steps < 1:
+        raise UsageError(f"--steps must be at least 1, got {args.steps}")
     cfg = EvalConfig(count=args.count, size=args.size, chunk=args.chunk, samples=args.samples, seed=args.seed)
     checkpoints = _checkpoints(args.checkpoint)
     known = relighter_names(discover=True)
@@ -104,9 +106,11 @@ def run(args) -> int:
                 raise
             print(f"skipping {name}: {exc}", file=sys.stderr)
     if args.steps is not None:
-        for name, relighter in relighters.items():
-            if getattr(relighter, "stochastic", False):
-                set_sampling(relighter, name, args.steps)
+        sampling = {n: r for n, r in relighters.items() if getattr(r, "stochastic", False)}
+        if not sampling:
+            raise UsageError(f"--steps applies to sampling methods (diffusion); none of {', '.join(relighters)} samples")
+        for name, relighter in sampling.items():
+            set_sampling(relighter, name, args.steps)
     command = "relight " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["eval"] else None
     result = evaluate(relighters, cfg)
     with atomic_folder(args.out, overwrite=args.overwrite, marker=EVAL_MARKER) as tmp:

@@ -39,7 +39,10 @@ from materials.lights import EVAL_CAMERA, EVAL_LIGHTS, eval_lights
 from relight import metrics
 from relight.interface import Relighter
 
-__all__ = ["EvalConfig", "EvalData", "load_eval_data", "evaluate", "write_report", "format_table", "format_per_material", "EVAL_CROP_SEED"]
+__all__ = [
+    "EvalConfig", "EvalData", "load_eval_data", "evaluate", "write_report", "format_table", "format_per_material",
+    "EVAL_CROP_SEED",
+]
 
 #: Seed of the evaluation crops (``GroupConfig.seed``); the materials come from EVAL_SEEDS.
 EVAL_CROP_SEED = 0
@@ -146,6 +149,8 @@ def evaluate(relighters: dict[str, Relighter], cfg: EvalConfig = EvalConfig(), d
             row["LPIPS"] = None
             row["seconds_per_image"] = seconds / (runs * n * k)
             row["per_image"] = per_image
+            if hasattr(relighter, "steps"):
+                row["sampling_steps"] = relighter.steps
             if row_name in spread:
                 row["std_error_corr"] = std_error_correlation(spread[row_name], pred, data.target)
             rows.append(row)
@@ -205,13 +210,16 @@ def format_table(result: dict) -> str:
 def format_per_material(result: dict) -> str:
     """Markdown table of PSNR per material (mean over its lights), one column per method.
 
+    Reads each row's ``per_image["PSNR"]`` (``N * K`` values, material-major: material
+    ``m`` holds ``[m * K, (m + 1) * K)``); the first column is the material's seed.
+
     The Table-1 PSNR is a mean over images, so a few near-perfect images (a diffuse
     material that the Lambertian re-shading relights exactly) weigh as much as the hard
     ones; this table shows where each method gains or loses its dB.
     """
     rows = result["rows"]
     n_mat, k = len(result["seeds"]), len(result["lights"])
-    head = "| material | " + " | ".join(r["method"] for r in rows) + " |"
+    head = "| seed | " + " | ".join(r["method"] for r in rows) + " |"
     lines = [head, "|---" * (len(rows) + 1) + "|"]
     for m in range(n_mat):
         cells = [sum(r["per_image"]["PSNR"][m * k : (m + 1) * k]) / k for r in rows]
@@ -304,6 +312,8 @@ def write_report(result: dict, folder: Path, command: str | None = None) -> list
         md += [f"Command: `{command}`", ""]
     md += [format_table(result), ""]
     for r in result["rows"]:
+        if "sampling_steps" in r:
+            md.append(f"{r['method']}: {r['sampling_steps']} sampling steps per sample.")
         if "std_error_corr" in r:
             md.append(f"{r['method']}: Pearson correlation between the per-pixel std across samples and the "
                       f"absolute error of the mean: {r['std_error_corr']:.3f}.")

@@ -55,8 +55,11 @@ def test_table_has_one_row_per_method(tmp_path, tiny_checkpoint):
     blob = json.loads(paths[1].read_text())
     assert len(blob["rows"]) == 3 and blob["lights"][0] == [-2.0, 2.0, 4.0]
     # Per-material PSNR: one line per material, each cell the mean of its 7 lights.
-    per_material = format_per_material(result).splitlines()[2:]
-    assert len(per_material) == 2
+    lines = format_per_material(result).splitlines()
+    assert lines[0] == "| seed | input | lambertian | bieron |"
+    per_material = lines[2:]
+    assert len(per_material) == cfg.count
+    assert per_material[0].startswith(f"| {result['seeds'][0]} |")
     lamb = result["rows"][1]["per_image"]["PSNR"]
     assert per_material[1].split("|")[3].strip() == f"{sum(lamb[7:]) / 7:.1f}"
     assert "PSNR per material" in paths[0].read_text()

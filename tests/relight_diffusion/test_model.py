@@ -189,26 +189,50 @@ def test_objective_and_condition_use_the_same_residual_base(tiny_model, group_ba
     assert torch.equal(calls[0][1], batch["light"].flatten(0, 1))
 
 
-def test_generate_cli_sampling_options(tiny_model, tmp_path, capsys):
-    """``relight generate --model diffusion --steps --samples`` reach the pipeline; the
-    options are refused for methods that do not sample, and below 1."""
+def test_sampling_options_reach_the_pipeline(tiny_model, tmp_path, capsys, monkeypatch):
+    """``relight generate --steps --samples`` and ``relight eval relight --steps`` reach
+    ``RelightPipeline.__call__`` and are recorded; refused for methods that do not
+    sample, and below 1."""
     import json
 
     import numpy as np
 
     from materials.io import write_exr
     from matcap.cli import main
+    from relight.diffusion.pipeline import RelightPipeline
 
+    calls = []
+    real_call = RelightPipeline.__call__
+
+    def spy(self, *args, **kwargs):
+        calls.append((kwargs["num_inference_steps"], kwargs["num_samples"]))
+        return real_call(self, *args, **kwargs)
+
+    monkeypatch.setattr(RelightPipeline, "__call__", spy)
     tiny_model.save_pretrained(tmp_path / "m")
     photo = tmp_path / "photo.exr"
     write_exr(photo, np.random.default_rng(0).random((16, 16, 3)).astype(np.float32))
     base = ["generate", str(photo), "--light", "1,1,4", "--out"]
     diffusion = ["--model", "diffusion", "--checkpoint", str(tmp_path / "m")]
-    assert main([*base, str(tmp_path / "a"), *diffusion, "--steps", "2", "--samples", "2"]) == 0
+    assert main([*base, str(tmp_path / "a"), *diffusion, "--steps", "2", "--samples", "3"]) == 0
+    assert calls == [(2, 3)]
     info = json.loads((tmp_path / "a" / "relit.json").read_text())
-    assert (info["steps"], info["samples"]) == (2, 2)
+    assert (info["steps"], info["samples"]) == (2, 3)
     assert main([*base, str(tmp_path / "b"), "--model", "lambertian", "--samples", "2"]) == 2
     assert "applies to sampling methods" in capsys.readouterr().err
     assert main([*base, str(tmp_path / "c"), *diffusion, "--steps", "0"]) == 2
     assert "--steps must be at least 1" in capsys.readouterr().err
     assert not (tmp_path / "b").exists() and not (tmp_path / "c").exists()
+
+    calls.clear()
+    ev = ["eval", "relight", "--count", "1", "--size", "16", "--out"]
+    assert main([*ev, str(tmp_path / "e"), "--methods", "lambertian,diffusion",
+                 "--checkpoint", f"diffusion={tmp_path / 'm'}", "--steps", "2"]) == 0
+    assert calls and all(steps == 2 for steps, _ in calls)
+    rows = {r["method"]: r for r in json.loads((tmp_path / "e" / "relight_eval.json").read_text())["rows"]}
+    assert rows["diffusion"]["sampling_steps"] == 2 and "sampling_steps" not in rows["lambertian"]
+    assert "diffusion: 2 sampling steps" in (tmp_path / "e" / "relight_eval.md").read_text()
+    assert main([*ev, str(tmp_path / "f"), "--methods", "lambertian", "--steps", "2"]) == 2
+    assert "none of lambertian samples" in capsys.readouterr().err
+    assert main([*ev, str(tmp_path / "g"), "--methods", "lambertian", "--steps", "0"]) == 2
+    assert "--steps must be at least 1" in capsys.readouterr().err
