@@ -236,35 +236,3 @@ def test_sampling_options_reach_the_pipeline(tiny_model, tmp_path, capsys, monke
     assert "none of lambertian samples" in capsys.readouterr().err
     assert main([*ev, str(tmp_path / "g"), "--methods", "lambertian", "--steps", "0"]) == 2
     assert "--steps must be at least 1" in capsys.readouterr().err
-
-
-def test_average_checkpoints_is_the_mean_of_the_weights(tiny_model, tmp_path):
-    from relight.diffusion.average import average_checkpoints, main
-
-    torch.manual_seed(1)
-    other = RelightDiffusion(tiny_model.config)
-    tiny_model.save_pretrained(tmp_path / "a")
-    other.save_pretrained(tmp_path / "b")
-    avg = average_checkpoints([tmp_path / "a", tmp_path / "b"])
-    a, b = tiny_model.state_dict(), other.state_dict()
-    for key, value in avg.state_dict().items():
-        torch.testing.assert_close(value, (a[key] + b[key]) / 2, msg=key)
-    # One checkpoint: itself; the command line writes a loadable checkpoint.
-    single = average_checkpoints([tmp_path / "a"]).state_dict()
-    assert all(torch.equal(single[k], a[k]) for k in a)
-    out = main([str(tmp_path / "a"), str(tmp_path / "b"), "--out", str(tmp_path / "avg")])
-    loaded = RelightDiffusion.from_pretrained(out).state_dict()
-    assert all(torch.equal(loaded[k], v) for k, v in avg.state_dict().items())
-
-
-def test_average_checkpoints_refuses_other_configs(tiny_model, tmp_path):
-    import dataclasses
-
-    from relight.diffusion.average import average_checkpoints
-
-    tiny_model.save_pretrained(tmp_path / "a")
-    RelightDiffusion(dataclasses.replace(tiny_model.config, ablation="wo_prior")).save_pretrained(tmp_path / "b")
-    with pytest.raises(ValueError, match="config differs"):
-        average_checkpoints([tmp_path / "a", tmp_path / "b"])
-    with pytest.raises(ValueError, match="at least one"):
-        average_checkpoints([])
