@@ -36,8 +36,8 @@ def main() -> None:
     os.environ["DGRSISE_KERNEL_THREADS"] = str(args.threads)
     torch.set_num_threads(args.threads)
 
-    from relight.evaluate import EvalConfig, load_eval_data
     from matcap.args import set_sampling
+    from relight.evaluate import EvalConfig, load_eval_data
     from relight.interface import get_relighter
 
     rows = {}

@@ -8,7 +8,7 @@ import torch
 
 from matcap.errors import UsageError
 
-__all__ = ["parse_position", "positions_or_default", "set_sampling"]
+__all__ = ["parse_position", "positions_or_default", "check_at_least_one", "set_sampling"]
 
 
 def parse_position(text: str, what: str = "position") -> tuple[float, float, float]:
@@ -32,6 +32,12 @@ def positions_or_default(texts: list[str] | None, default: torch.Tensor, what: s
     return torch.tensor([parse_position(t, what) for t in texts], dtype=torch.float32)
 
 
+def check_at_least_one(flag: str, value: int | None) -> None:
+    """UsageError naming ``flag`` when an optional count is given below 1 (None passes)."""
+    if value is not None and value < 1:
+        raise UsageError(f"{flag} must be at least 1, got {value}")
+
+
 def set_sampling(relighter, name: str, steps: int | None, samples: int | None = None) -> None:
     """Apply ``--steps`` / ``--samples`` to a sampling relighter (diffusion).
 
@@ -44,10 +50,9 @@ def set_sampling(relighter, name: str, steps: int | None, samples: int | None = 
         UsageError: a value below 1, or an option given for a method that does not sample.
     """
     for flag, value, attr in (("--steps", steps, "steps"), ("--samples", samples, "num_samples")):
+        check_at_least_one(flag, value)
         if value is None:
             continue
-        if value < 1:
-            raise UsageError(f"{flag} must be at least 1, got {value}")
         if not hasattr(relighter, attr):
             raise UsageError(f"{flag} applies to sampling methods (diffusion), not to {name!r}")
         setattr(relighter, attr, value)

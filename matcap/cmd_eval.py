@@ -8,7 +8,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from matcap.args import set_sampling
+from matcap.args import check_at_least_one, set_sampling
 from matcap.errors import UsageError
 
 __all__ = ["add_parser", "run", "EVAL_MARKER"]
@@ -85,8 +85,7 @@ def run(args) -> int:
     from relight.evaluate import EvalConfig, evaluate, format_table, write_report
     from relight.interface import get_relighter, relighter_names
 
-    if args.steps is not None and args.steps < 1:
-        raise UsageError(f"--steps must be at least 1, got {args.steps}")
+    check_at_least_one("--steps", args.steps)  # before any model is loaded
     cfg = EvalConfig(count=args.count, size=args.size, chunk=args.chunk, samples=args.samples, seed=args.seed)
     checkpoints = _checkpoints(args.checkpoint)
     known = relighter_names(discover=True)
