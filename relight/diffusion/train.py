@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import os
 import shutil
 import time
@@ -39,6 +40,10 @@ class TrainConfig:
     resolution: int = 64
     block_out_channels: str = "32,64,128"
     lr: float = 2e-4
+    # "constant", or "cosine": constant until lr_decay_from, then cosine to zero at `steps`
+    # (a function of the step alone, so a resumed run continues the same curve).
+    lr_schedule: str = "constant"
+    lr_decay_from: int = 0
     seed: int = 0
     ablation: str = "full"
     base: str = "photo"  # tiny preset: residual relative to the photo or its Lambertian relighting
@@ -47,6 +52,24 @@ class TrainConfig:
     ckpt_every: int = 50
     keep_every: int = 0  # also keep a copy of the checkpoint every N steps (0 = none), e.g. for same-budget ablations
     threads: int = 0  # torch threads; 0 = leave torch's default
+
+
+LR_SCHEDULES = ("constant", "cosine")
+
+
+def learning_rate(cfg: TrainConfig, step: int) -> float:
+    """The learning rate for the update that takes the model from ``step`` to ``step + 1``."""
+    if cfg.lr_schedule == "constant" or step < cfg.lr_decay_from:
+        return cfg.lr
+    t = min(1.0, (step - cfg.lr_decay_from) / max(1, cfg.steps - cfg.lr_decay_from))
+    return cfg.lr * 0.5 * (1 + math.cos(math.pi * t))
+
+
+def _check(cfg: TrainConfig) -> None:
+    if cfg.lr_schedule not in LR_SCHEDULES:
+        raise ValueError(f"lr_schedule must be one of {LR_SCHEDULES}, got {cfg.lr_schedule!r}")
+    if cfg.lr_schedule == "cosine" and not 0 <= cfg.lr_decay_from < cfg.steps:
+        raise ValueError(f"lr_decay_from must lie in [0, steps), got {cfg.lr_decay_from} with steps {cfg.steps}")
 
 
 def _save(ckpt: Path, model, optimizer, step: int, history: list, accel: Accelerator) -> None:
@@ -82,6 +105,7 @@ def _plot(history: list, path: Path) -> None:
 
 
 def main(cfg: TrainConfig) -> Path:
+    _check(cfg)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     accel = Accelerator(cpu=not torch.cuda.is_available())
@@ -121,11 +145,13 @@ def main(cfg: TrainConfig) -> Path:
         loss = diffusion_loss(model, scheduler, batch)
         optimizer.zero_grad(set_to_none=True)
         accel.backward(loss)
+        for group in optimizer.param_groups:
+            group["lr"] = learning_rate(cfg, step)
         optimizer.step()
         step += 1
         history.append((step, float(loss.detach())))
         bar.update(1)
-        bar.set_postfix(loss=f"{history[-1][1]:.4f}")
+        bar.set_postfix(loss=f"{history[-1][1]:.4f}", lr=f"{learning_rate(cfg, step - 1):.1e}")
         if step % cfg.ckpt_every == 0 and accel.is_main_process:
             _save(ckpt, model, optimizer, step, history, accel)
             _plot(history, Path(cfg.ckpt_dir) / "loss.png")
