@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import copy
 import shlex
 import sys
 from pathlib import Path
@@ -36,8 +37,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="checkpoint folder of a method (repeat); default: its shipped weights")
     r.add_argument("--samples", type=int, default=1, help="samples of stochastic methods; >1 adds a "
                    "'mean of N' row (default %(default)s)")
-    r.add_argument("--steps", type=int, default=None, help="sampling steps of stochastic methods "
-                   "(default: theirs, 20 for diffusion)")
+    r.add_argument("--steps", default=None, metavar="N[,N...]", help="sampling steps of stochastic methods "
+                   "(default: theirs, 20 for diffusion); several, e.g. 10,1, evaluate each setting in the "
+                   "same run as rows 'NAME (N steps)'")
     r.add_argument("--chunk", type=int, default=4, help="materials per relight call (default %(default)s)")
     r.add_argument("--seed", type=int, default=0, help="generator seed of stochastic methods")
     r.add_argument("--overwrite", action="store_true", help="replace an output folder written by this command")
@@ -80,12 +82,48 @@ def _checkpoints(items: list[str]) -> dict[str, str]:
     return out
 
 
+def _steps_list(text: str | None) -> list[int] | None:
+    """``--steps`` value -> step counts (each at least 1, no repeats), or None."""
+    if text is None:
+        return None
+    try:
+        values = [int(v) for v in text.split(",")]
+    except ValueError:
+        raise UsageError(f"--steps {text!r} must be a whole number or a comma-separated list of them") from None
+    for v in values:
+        check_at_least_one("--steps", v)
+    if len(set(values)) != len(values):
+        raise UsageError(f"--steps {text!r} repeats a value")
+    return values
+
+
+def _expand_steps(relighters: dict, steps: list[int]) -> dict:
+    """Apply ``--steps`` to the sampling relighters; with several values, each sampling
+    method becomes one entry per value (shallow copies sharing the model)."""
+    sampling = [n for n, r in relighters.items() if getattr(r, "stochastic", False)]
+    if not sampling:
+        raise UsageError(f"--steps applies to sampling methods (diffusion); none of {', '.join(relighters)} samples")
+    out = {}
+    for name, relighter in relighters.items():
+        if name not in sampling:
+            out[name] = relighter
+        elif len(steps) == 1:
+            set_sampling(relighter, name, steps[0])
+            out[name] = relighter
+        else:
+            for n in steps:
+                variant = copy.copy(relighter)
+                set_sampling(variant, name, n)
+                out[f"{name} ({n} step{'s' if n > 1 else ''})"] = variant
+    return out
+
+
 def run(args) -> int:
     from materials.io.atomic import atomic_folder
     from relight.evaluate import EvalConfig, evaluate, format_table, write_report
     from relight.interface import get_relighter, relighter_names
 
-    check_at_least_one("--steps", args.steps)  # before any model is loaded
+    steps = _steps_list(args.steps)  # before any model is loaded
     cfg = EvalConfig(count=args.count, size=args.size, chunk=args.chunk, samples=args.samples, seed=args.seed)
     checkpoints = _checkpoints(args.checkpoint)
     known = relighter_names(discover=True)
@@ -104,12 +142,8 @@ def run(args) -> int:
             if explicit or name in checkpoints:
                 raise
             print(f"skipping {name}: {exc}", file=sys.stderr)
-    if args.steps is not None:
-        sampling = {n: r for n, r in relighters.items() if getattr(r, "stochastic", False)}
-        if not sampling:
-            raise UsageError(f"--steps applies to sampling methods (diffusion); none of {', '.join(relighters)} samples")
-        for name, relighter in sampling.items():
-            set_sampling(relighter, name, args.steps)
+    if steps is not None:
+        relighters = _expand_steps(relighters, steps)
     command = "relight " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["eval"] else None
     result = evaluate(relighters, cfg)
     with atomic_folder(args.out, overwrite=args.overwrite, marker=EVAL_MARKER) as tmp:

@@ -236,3 +236,34 @@ def test_sampling_options_reach_the_pipeline(tiny_model, tmp_path, capsys, monke
     assert "none of lambertian samples" in capsys.readouterr().err
     assert main([*ev, str(tmp_path / "g"), "--methods", "lambertian", "--steps", "0"]) == 2
     assert "--steps must be at least 1" in capsys.readouterr().err
+
+
+def test_eval_compares_several_step_counts_in_one_run(tiny_model, tmp_path, capsys, monkeypatch):
+    """``relight eval relight --steps 2,1``: one row per setting, each sampled with its own
+    step count; a bad list is refused before any model is loaded."""
+    import json
+
+    from matcap.cli import main
+    from relight.diffusion.pipeline import RelightPipeline
+
+    calls = []
+    real_call = RelightPipeline.__call__
+
+    def spy(self, *args, **kwargs):
+        calls.append(kwargs["num_inference_steps"])
+        return real_call(self, *args, **kwargs)
+
+    monkeypatch.setattr(RelightPipeline, "__call__", spy)
+    tiny_model.save_pretrained(tmp_path / "m")
+    ev = ["eval", "relight", "--count", "1", "--size", "16", "--methods", "lambertian,diffusion",
+          "--checkpoint", f"diffusion={tmp_path / 'm'}", "--out"]
+    assert main([*ev, str(tmp_path / "e"), "--steps", "2,1", "--samples", "2"]) == 0
+    assert sorted(set(calls)) == [1, 2] and calls.count(1) == calls.count(2)
+    rows = {r["method"]: r for r in json.loads((tmp_path / "e" / "relight_eval.json").read_text())["rows"]}
+    assert set(rows) == {"lambertian", "diffusion (2 steps)", "diffusion (2 steps) (mean of 2)",
+                         "diffusion (1 step)", "diffusion (1 step) (mean of 2)"}
+    assert rows["diffusion (2 steps)"]["sampling_steps"] == 2 and rows["diffusion (1 step)"]["sampling_steps"] == 1
+    for bad, message in (("2,2", "repeats"), ("2,x", "comma-separated"), ("3,0", "at least 1")):
+        assert main([*ev, str(tmp_path / "bad"), "--steps", bad]) == 2
+        assert message in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
