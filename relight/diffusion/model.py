@@ -141,6 +141,7 @@ class RelightDiffusion(nn.Module):
         light: torch.Tensor,
         camera: torch.Tensor,
         permutation: torch.Tensor | None = None,
+        base_x: torch.Tensor | None = None,
     ) -> Condition:
         """Conditioning for N targets.
 
@@ -149,6 +150,8 @@ class RelightDiffusion(nn.Module):
             background: ``[N, 3, H, W]`` linear photos for the BCE (the photo at inference).
             light, camera: ``[N, 3]`` target light and camera positions.
             permutation: training-time shuffle of BCE features (``shuffle_within_groups``).
+            base_x: ``residual_base(photo, light, camera)`` when the caller already has it
+                (training: the objective needs it for the target too); None computes it.
         Returns:
             ``Condition`` (features, encoder states ``[N, T + L, D]``, residual base).
         """
@@ -157,7 +160,9 @@ class RelightDiffusion(nn.Module):
         lvh = kernels.lvh_maps(light[:, None], camera[:, None], photo.shape[-2:], plane_size=self.config.plane_size)
         tokens = self.light_tokens(lvh[:, 0])
         states = torch.cat([self.text_embeds.expand(tokens.shape[0], -1, -1), tokens], dim=1)
-        return Condition(feats, states, self.residual_base(photo, light, camera))
+        if base_x is None:
+            base_x = self.residual_base(photo, light, camera)
+        return Condition(feats, states, base_x)
 
     def residual_base(self, photo: torch.Tensor, light: torch.Tensor, camera: torch.Tensor) -> torch.Tensor:
         """What ``residual`` and ``photo_concat`` use as the photo, in model space ``[N, 3, H, W]``:
@@ -195,11 +200,12 @@ class RelightDiffusion(nn.Module):
         light: torch.Tensor,
         camera: torch.Tensor,
         permutation: torch.Tensor | None = None,
+        base_x: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Training forward: condition + denoise in one call, so a DistributedDataParallel
         wrapper sees (and synchronises) every gradient. Shapes as in ``encode_condition``
         and ``denoise``; returns the v-prediction ``[N, 3, H, W]``."""
-        return self.denoise(x_t, t, *self.encode_condition(photo, background, light, camera, permutation))
+        return self.denoise(x_t, t, *self.encode_condition(photo, background, light, camera, permutation, base_x))
 
     # ------------------------------------------------------------------ image space
     @staticmethod

@@ -29,10 +29,12 @@ def diffusion_loss(
     perm = shuffle_within_groups(b * v, v, generator).to(images.device)
     unwrapped = getattr(model, "module", model)  # DistributedDataParallel keeps the model in .module
     light, camera = light.flatten(0, 1), camera.flatten(0, 1)
-    x0 = unwrapped.to_model_space(targets, unwrapped.residual_base(photo, light, camera))
+    # One base for the target x0 and the UNet's extra channels (the condition).
+    base_x = unwrapped.residual_base(photo, light, camera)
+    x0 = unwrapped.to_model_space(targets, base_x)
     noise = torch.randn(x0.shape, generator=generator).to(x0.device)
     t = torch.randint(0, scheduler.config.num_train_timesteps, (x0.shape[0],), generator=generator).to(x0.device)
     x_t = scheduler.add_noise(x0, noise, t)
     target = scheduler.get_velocity(x0, noise, t)
-    pred = model(x_t, t, photo, targets, light, camera, perm)
+    pred = model(x_t, t, photo, targets, light, camera, perm, base_x)
     return F.mse_loss(pred, target)

@@ -172,21 +172,31 @@ def test_lambertian_base_is_checked_and_legacy_configs_use_the_photo():
 
 def test_objective_and_condition_use_the_same_residual_base(tiny_model, group_batch, monkeypatch):
     # The training target x0 (objective) and the UNet's extra channels (encode_condition)
-    # must be relative to the same base: same photo, lights and cameras, one per target.
-    calls = []
-    original = tiny_model.residual_base
+    # must be relative to the same base, computed once per step from the group's photo
+    # and each target's light and camera.
+    calls, bases, seen = [], [], []
+    original_base, original_denoise = tiny_model.residual_base, tiny_model.denoise
 
-    def spy(photo, light, camera):
+    def spy_base(photo, light, camera):
         calls.append((photo.clone(), light.clone(), camera.clone()))
-        return original(photo, light, camera)
+        bases.append(original_base(photo, light, camera))
+        return bases[-1]
 
-    monkeypatch.setattr(tiny_model, "residual_base", spy)
+    def spy_denoise(x_t, t, feats, states, base_x):
+        seen.append(base_x)
+        return original_denoise(x_t, t, feats, states, base_x)
+
+    monkeypatch.setattr(tiny_model, "residual_base", spy_base)
+    monkeypatch.setattr(tiny_model, "denoise", spy_denoise)
     batch = group_batch(b=1, v=4)
     diffusion_loss(tiny_model, make_train_scheduler(), batch, generator=torch.Generator().manual_seed(0))
-    assert len(calls) == 2
-    for a, b in zip(*calls):
-        assert torch.equal(a, b)
-    assert torch.equal(calls[0][1], batch["light"].flatten(0, 1))
+    assert len(calls) == 1 and len(seen) == 1
+    assert seen[0] is bases[0]
+    photo, light, camera = calls[0]
+    assert torch.equal(photo, batch["images"][:, :1].expand(-1, 4, -1, -1, -1).flatten(0, 1))
+    assert torch.equal(light, batch["light"].flatten(0, 1)) and torch.equal(camera, batch["camera"].flatten(0, 1))
+    # the condition computes the same base itself when none is given (inference)
+    assert torch.equal(tiny_model.encode_condition(photo, photo, light, camera).base_x, bases[0])
 
 
 def test_sampling_options_reach_the_pipeline(tiny_model, tmp_path, capsys, monkeypatch):
