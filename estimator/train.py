@@ -8,7 +8,7 @@ or ``estimator.train.main(TrainConfig(...))``. Model, loss and checkpoint logic 
 wires them: HF accelerate (single-process CPU, or multi-GPU / multi-node with
 ``accelerate launch``), the data, the step loop, logging, checkpoints and resume.
 
-Each step draws one view count N uniform in [1, max_views] for the whole batch; the views
+Each step draws one view count N uniform in [min_views, max_views] for the whole batch; the views
 are view 0 (the flash photo, always) plus N - 1 of the group's other views at random.
 Batches, view subsets and loss lights come from generators seeded by (seed, step), so a
 resumed run sees exactly the data it would have seen without the interruption.
@@ -56,6 +56,8 @@ class TrainConfig:
         lr, weight_decay, warmup_steps: AdamW, linear warm-up then cosine decay to
             ``min_lr_ratio * lr`` at ``steps``.
         max_views: the largest N (views of a group; view 0 is the flash photo).
+        min_views: the smallest N (1: every count; 8 with ``max_views`` 8: always all
+            views, e.g. a phase that trains what only several views reveal).
         map_weight, render_weight, normal_weight: loss weights (``estimator.losses``).
         init_from: a saved estimator folder (``save_pretrained``) whose weights start the
             run, e.g. the shipped model for a fine-tuning run; its architecture must equal
@@ -82,6 +84,7 @@ class TrainConfig:
     warmup_steps: int = 100
     min_lr_ratio: float = 0.1
     max_views: int = 8
+    min_views: int = 1
     map_weight: float = MAP_WEIGHT
     render_weight: float = RENDER_WEIGHT
     normal_weight: float = NORMAL_WEIGHT
@@ -99,9 +102,11 @@ class TrainConfig:
     def __post_init__(self) -> None:
         if isinstance(self.model, dict):
             self.model = EstimatorConfig(**self.model)
-        for name in ("steps", "batch_size", "max_views", "ckpt_every", "log_every", "keep_checkpoints"):
+        for name in ("steps", "batch_size", "max_views", "min_views", "ckpt_every", "log_every", "keep_checkpoints"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if self.min_views > self.max_views:
+            raise ValueError(f"min_views ({self.min_views}) must not exceed max_views ({self.max_views})")
         if self.size % self.model.downsample_factor:
             raise ValueError(f"size {self.size} must be a multiple of {self.model.downsample_factor} (model levels)")
         if self.source_size is None:
@@ -118,9 +123,11 @@ def _step_generator(seed: int, step: int, stream: int) -> torch.Generator:
     return torch.Generator().manual_seed((seed * 1_000_003 + step) * 8 + stream)
 
 
-def select_views(total: int, max_views: int, generator: torch.Generator) -> list[int]:
-    """View 0 plus N - 1 others drawn without replacement, N uniform in [1, min(max_views, total)]."""
-    n = int(torch.randint(1, min(max_views, total) + 1, (1,), generator=generator))
+def select_views(total: int, max_views: int, generator: torch.Generator, min_views: int = 1) -> list[int]:
+    """View 0 plus N - 1 others drawn without replacement, N uniform in
+    [min(min_views, hi), hi] with hi = min(max_views, total)."""
+    hi = min(max_views, total)
+    n = int(torch.randint(min(min_views, hi), hi + 1, (1,), generator=generator))
     others = (torch.randperm(total - 1, generator=generator)[: n - 1] + 1).sort().values
     return [0, *others.tolist()]
 
@@ -247,7 +254,9 @@ def main(cfg: TrainConfig) -> Path:
                desc="estimator", mininterval=5.0)
     step, tick = start, time.perf_counter()
     for batch in loader:
-        views = select_views(batch["images"].shape[1], cfg.max_views, _step_generator(cfg.seed, step, stream=1))
+        views = select_views(
+            batch["images"].shape[1], cfg.max_views, _step_generator(cfg.seed, step, stream=1), cfg.min_views
+        )
         pred = model(batch["images"][:, views], batch["light"][:, views], batch["camera"][:, views])
         parts = estimator_loss(
             pred, Material.from_stacked(batch["maps"]), map_weight=cfg.map_weight, render_weight=cfg.render_weight,

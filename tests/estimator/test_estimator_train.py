@@ -58,6 +58,19 @@ def test_select_views_always_has_the_flash_view():
     assert select_views(8, 1, torch.Generator().manual_seed(0)) == [0]
 
 
+def test_select_views_min_views():
+    # min_views 1 is the default stream (resumed runs of older configs see the same views)
+    for s in range(20):
+        g = lambda: torch.Generator().manual_seed(s)  # noqa: E731
+        assert select_views(8, 8, g()) == select_views(8, 8, g(), min_views=1)
+    counts = {len(select_views(8, 8, torch.Generator().manual_seed(s), min_views=6)) for s in range(100)}
+    assert counts == {6, 7, 8}
+    assert select_views(8, 8, torch.Generator().manual_seed(0), min_views=8) == list(range(8))
+    assert select_views(3, 8, torch.Generator().manual_seed(0), min_views=8) == [0, 1, 2]  # capped by the group
+    with pytest.raises(ValueError, match="min_views"):
+        TrainConfig(min_views=5, max_views=4)
+
+
 def test_step_sampler_resumes_the_same_stream():
     full = list(StepBatchSampler(100, 4, seed=1, start=0, steps=6))
     assert list(StepBatchSampler(100, 4, seed=1, start=3, steps=6)) == full[3:]
