@@ -22,6 +22,8 @@ from torch.utils.data import DataLoader
 from tqdm.auto import tqdm
 
 from materials.dataset import TRAIN_SEEDS, GroupConfig, RenderedGroups
+from diffusers.training_utils import EMAModel
+
 from relight.diffusion.config import RelightConfig
 from relight.diffusion.model import RelightDiffusion, make_train_scheduler
 from relight.diffusion.objective import diffusion_loss
@@ -44,6 +46,10 @@ class TrainConfig:
     # (a function of the step alone, so a resumed run continues the same curve).
     lr_schedule: str = "constant"
     lr_decay_from: int = 0
+    # Exponential moving average of the weights (0 = off), saved beside the model as
+    # `ema/`: at lr 2e-4 and one group a step, checkpoints 5 steps apart differed by 0.7 dB
+    # held-out PSNR (one-step sampling; 6900 vs 6905 steps of the shipped run).
+    ema_decay: float = 0.0
     seed: int = 0
     ablation: str = "full"
     base: str = "photo"  # tiny preset: residual relative to the photo or its Lambertian relighting
@@ -70,14 +76,36 @@ def _check(cfg: TrainConfig) -> None:
         raise ValueError(f"lr_schedule must be one of {LR_SCHEDULES}, got {cfg.lr_schedule!r}")
     if cfg.lr_schedule == "cosine" and not 0 <= cfg.lr_decay_from < cfg.steps:
         raise ValueError(f"lr_decay_from must lie in [0, steps), got {cfg.lr_decay_from} with steps {cfg.steps}")
+    if not 0 <= cfg.ema_decay < 1:
+        raise ValueError(f"ema_decay must lie in [0, 1), got {cfg.ema_decay}")
 
 
-def _save(ckpt: Path, model, optimizer, step: int, history: list, accel: Accelerator) -> None:
+def _trainable(model: torch.nn.Module) -> list[torch.nn.Parameter]:
+    return [p for p in model.parameters() if p.requires_grad]
+
+
+def _save_model(model, folder: Path, ema: EMAModel | None) -> None:
+    """``folder/model`` (the trained weights) and, with EMA, ``folder/ema`` (the averaged ones)."""
+    model.save_pretrained(folder / "model")
+    if ema is not None:
+        params = _trainable(model)
+        ema.store(params)
+        ema.copy_to(params)
+        try:
+            model.save_pretrained(folder / "ema")
+        finally:
+            ema.restore(params)
+
+
+def _save(ckpt: Path, model, optimizer, step: int, history: list, accel: Accelerator, ema: EMAModel | None) -> None:
     """Atomic checkpoint: write a temporary sibling folder, then swap it in."""
     tmp = ckpt.with_name(ckpt.name + ".tmp")
     shutil.rmtree(tmp, ignore_errors=True)
-    accel.unwrap_model(model).save_pretrained(tmp / "model")
-    torch.save({"optimizer": optimizer.state_dict(), "step": step, "rng": torch.get_rng_state()}, tmp / "state.pt")
+    _save_model(accel.unwrap_model(model), tmp, ema)
+    state = {"optimizer": optimizer.state_dict(), "step": step, "rng": torch.get_rng_state()}
+    if ema is not None:
+        state["ema"] = ema.state_dict()
+    torch.save(state, tmp / "state.pt")
     (tmp / "history.json").write_text(json.dumps(history))
     old = ckpt.with_name(ckpt.name + ".old")
     if ckpt.exists():
@@ -120,8 +148,8 @@ def main(cfg: TrainConfig) -> Path:
             preset=cfg.preset, sd21_path=cfg.sd21_path or None, resolution=cfg.resolution,
             ablation=cfg.ablation, block_out_channels=channels, base=cfg.base,
         ))
-    optimizer = torch.optim.AdamW([p for p in model.parameters() if p.requires_grad], lr=cfg.lr)
-    step, history = 0, []
+    optimizer = torch.optim.AdamW(_trainable(model), lr=cfg.lr)
+    step, history, state = 0, [], {}
     if (ckpt / "state.pt").is_file():
         state = torch.load(ckpt / "state.pt", weights_only=False)
         optimizer.load_state_dict(state["optimizer"])
@@ -135,6 +163,14 @@ def main(cfg: TrainConfig) -> Path:
         batch_size=cfg.groups_per_step, shuffle=False, num_workers=0,
     )
     model, optimizer, loader = accel.prepare(model, optimizer, loader)
+    ema = None
+    if cfg.ema_decay:  # after prepare: the average lives on the model's device
+        # It starts from the current weights (a resumed run without one starts it there).
+        ema = EMAModel(_trainable(accel.unwrap_model(model)), decay=cfg.ema_decay)
+        if "ema" in state:
+            ema.load_state_dict(state["ema"])
+            ema.to(device=accel.device)
+            ema.decay = cfg.ema_decay  # the flag wins over the stored value
     scheduler = make_train_scheduler()
     start = time.time()
     bar = tqdm(total=cfg.steps, initial=step, desc="train relight", disable=not accel.is_local_main_process)
@@ -148,19 +184,21 @@ def main(cfg: TrainConfig) -> Path:
         for group in optimizer.param_groups:
             group["lr"] = learning_rate(cfg, step)
         optimizer.step()
+        if ema is not None:
+            ema.step(_trainable(accel.unwrap_model(model)))
         step += 1
         history.append((step, float(loss.detach())))
         bar.update(1)
         bar.set_postfix(loss=f"{history[-1][1]:.4f}", lr=f"{learning_rate(cfg, step - 1):.1e}")
         if step % cfg.ckpt_every == 0 and accel.is_main_process:
-            _save(ckpt, model, optimizer, step, history, accel)
+            _save(ckpt, model, optimizer, step, history, accel, ema)
             _plot(history, Path(cfg.ckpt_dir) / "loss.png")
         if cfg.keep_every and step % cfg.keep_every == 0 and accel.is_main_process:
             kept = Path(cfg.ckpt_dir) / f"step_{step:06d}"
             shutil.rmtree(kept, ignore_errors=True)
-            accel.unwrap_model(model).save_pretrained(kept / "model")
+            _save_model(accel.unwrap_model(model), kept, ema)
     if accel.is_main_process:
-        _save(ckpt, model, optimizer, step, history, accel)
+        _save(ckpt, model, optimizer, step, history, accel, ema)
         _plot(history, Path(cfg.ckpt_dir) / "loss.png")
     bar.close()
     return ckpt
