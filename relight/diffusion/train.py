@@ -18,12 +18,11 @@ from pathlib import Path
 
 import torch
 from accelerate import Accelerator
+from diffusers.training_utils import EMAModel
 from torch.utils.data import DataLoader
 from tqdm.auto import tqdm
 
 from materials.dataset import TRAIN_SEEDS, GroupConfig, RenderedGroups
-from diffusers.training_utils import EMAModel
-
 from relight.diffusion.config import RelightConfig
 from relight.diffusion.model import RelightDiffusion, make_train_scheduler
 from relight.diffusion.objective import diffusion_loss
