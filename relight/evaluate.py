@@ -313,7 +313,7 @@ def write_report(result: dict, folder: Path, command: str | None = None) -> list
     md += [format_table(result), ""]
     for r in result["rows"]:
         if "sampling_steps" in r:
-            n = r['sampling_steps']
+            n = r["sampling_steps"]
             md.append(f"{r['method']}: {n} sampling step{'s' if n != 1 else ''} per sample.")
         if "std_error_corr" in r:
             md.append(f"{r['method']}: Pearson correlation between the per-pixel std across samples and the "

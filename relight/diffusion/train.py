@@ -58,6 +58,14 @@ class TrainConfig:
     keep_every: int = 0  # also keep a copy of the checkpoint every N steps (0 = none), e.g. for same-budget ablations
     threads: int = 0  # torch threads; 0 = leave torch's default
 
+    def __post_init__(self) -> None:
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise ValueError(f"lr_schedule must be one of {LR_SCHEDULES}, got {self.lr_schedule!r}")
+        if self.lr_schedule == "cosine" and not 0 <= self.lr_decay_from < self.steps:
+            raise ValueError(f"lr_decay_from must lie in [0, steps), got {self.lr_decay_from} with steps {self.steps}")
+        if not 0 <= self.ema_decay < 1:
+            raise ValueError(f"ema_decay must lie in [0, 1), got {self.ema_decay}")
+
 
 LR_SCHEDULES = ("constant", "cosine")
 
@@ -68,15 +76,6 @@ def learning_rate(cfg: TrainConfig, step: int) -> float:
         return cfg.lr
     t = min(1.0, (step - cfg.lr_decay_from) / max(1, cfg.steps - cfg.lr_decay_from))
     return cfg.lr * 0.5 * (1 + math.cos(math.pi * t))
-
-
-def _check(cfg: TrainConfig) -> None:
-    if cfg.lr_schedule not in LR_SCHEDULES:
-        raise ValueError(f"lr_schedule must be one of {LR_SCHEDULES}, got {cfg.lr_schedule!r}")
-    if cfg.lr_schedule == "cosine" and not 0 <= cfg.lr_decay_from < cfg.steps:
-        raise ValueError(f"lr_decay_from must lie in [0, steps), got {cfg.lr_decay_from} with steps {cfg.steps}")
-    if not 0 <= cfg.ema_decay < 1:
-        raise ValueError(f"ema_decay must lie in [0, 1), got {cfg.ema_decay}")
 
 
 def _trainable(model: torch.nn.Module) -> list[torch.nn.Parameter]:
@@ -132,7 +131,6 @@ def _plot(history: list, path: Path) -> None:
 
 
 def main(cfg: TrainConfig) -> Path:
-    _check(cfg)
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     accel = Accelerator(cpu=not torch.cuda.is_available())
@@ -162,10 +160,10 @@ def main(cfg: TrainConfig) -> Path:
         batch_size=cfg.groups_per_step, shuffle=False, num_workers=0,
     )
     model, optimizer, loader = accel.prepare(model, optimizer, loader)
-    ema = None
+    ema, trained = None, _trainable(accel.unwrap_model(model))
     if cfg.ema_decay:  # after prepare: the average lives on the model's device
         # It starts from the current weights (a resumed run without one starts it there).
-        ema = EMAModel(_trainable(accel.unwrap_model(model)), decay=cfg.ema_decay)
+        ema = EMAModel(trained, decay=cfg.ema_decay)
         if "ema" in state:
             ema.load_state_dict(state["ema"])
             ema.to(device=accel.device)
@@ -184,7 +182,7 @@ def main(cfg: TrainConfig) -> Path:
             group["lr"] = learning_rate(cfg, step)
         optimizer.step()
         if ema is not None:
-            ema.step(_trainable(accel.unwrap_model(model)))
+            ema.step(trained)
         step += 1
         history.append((step, float(loss.detach())))
         bar.update(1)

@@ -199,16 +199,9 @@ def test_objective_and_condition_use_the_same_residual_base(tiny_model, group_ba
     assert torch.equal(tiny_model.encode_condition(photo, photo, light, camera).base_x, bases[0])
 
 
-def test_sampling_options_reach_the_pipeline(tiny_model, tmp_path, capsys, monkeypatch):
-    """``relight generate --steps --samples`` and ``relight eval relight --steps`` reach
-    ``RelightPipeline.__call__`` and are recorded; refused for methods that do not
-    sample, and below 1."""
-    import json
-
-    import numpy as np
-
-    from materials.io import write_exr
-    from matcap.cli import main
+@pytest.fixture
+def pipeline_calls(monkeypatch):
+    """``(num_inference_steps, num_samples)`` of every ``RelightPipeline`` call, in order."""
     from relight.diffusion.pipeline import RelightPipeline
 
     calls = []
@@ -219,6 +212,21 @@ def test_sampling_options_reach_the_pipeline(tiny_model, tmp_path, capsys, monke
         return real_call(self, *args, **kwargs)
 
     monkeypatch.setattr(RelightPipeline, "__call__", spy)
+    return calls
+
+
+def test_sampling_options_reach_the_pipeline(tiny_model, tmp_path, capsys, pipeline_calls):
+    """``relight generate --steps --samples`` and ``relight eval relight --steps`` reach
+    ``RelightPipeline.__call__`` and are recorded; refused for methods that do not
+    sample, and below 1."""
+    import json
+
+    import numpy as np
+
+    from materials.io import write_exr
+    from matcap.cli import main
+
+    calls = pipeline_calls
     tiny_model.save_pretrained(tmp_path / "m")
     photo = tmp_path / "photo.exr"
     write_exr(photo, np.random.default_rng(0).random((16, 16, 3)).astype(np.float32))
@@ -248,26 +256,18 @@ def test_sampling_options_reach_the_pipeline(tiny_model, tmp_path, capsys, monke
     assert "--steps must be at least 1" in capsys.readouterr().err
 
 
-def test_eval_compares_several_step_counts_in_one_run(tiny_model, tmp_path, capsys, monkeypatch):
+def test_eval_compares_several_step_counts_in_one_run(tiny_model, tmp_path, capsys, pipeline_calls):
     """``relight eval relight --steps 2,1``: one row per setting, each sampled with its own
     step count; a bad list is refused before any model is loaded."""
     import json
 
     from matcap.cli import main
-    from relight.diffusion.pipeline import RelightPipeline
 
-    calls = []
-    real_call = RelightPipeline.__call__
-
-    def spy(self, *args, **kwargs):
-        calls.append(kwargs["num_inference_steps"])
-        return real_call(self, *args, **kwargs)
-
-    monkeypatch.setattr(RelightPipeline, "__call__", spy)
     tiny_model.save_pretrained(tmp_path / "m")
     ev = ["eval", "relight", "--count", "1", "--size", "16", "--methods", "lambertian,diffusion",
           "--checkpoint", f"diffusion={tmp_path / 'm'}", "--out"]
     assert main([*ev, str(tmp_path / "e"), "--steps", "2,1", "--samples", "2"]) == 0
+    calls = [steps for steps, _ in pipeline_calls]
     assert sorted(set(calls)) == [1, 2] and calls.count(1) == calls.count(2)
     rows = {r["method"]: r for r in json.loads((tmp_path / "e" / "relight_eval.json").read_text())["rows"]}
     assert set(rows) == {"lambertian", "diffusion (2 steps)", "diffusion (2 steps) (mean of 2)",
