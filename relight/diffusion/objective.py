@@ -12,7 +12,11 @@ __all__ = ["diffusion_loss"]
 
 
 def diffusion_loss(
-    model: torch.nn.Module, scheduler: DDPMScheduler, batch: dict, generator: torch.Generator | None = None
+    model: torch.nn.Module,
+    scheduler: DDPMScheduler,
+    batch: dict,
+    generator: torch.Generator | None = None,
+    terminal_fraction: float = 0.0,
 ) -> torch.Tensor:
     """v-prediction MSE for a batch of groups (SPEC section 4).
 
@@ -21,6 +25,11 @@ def diffusion_loss(
     the group's flash photo (specular prior) and on background features of the group's
     renders, shuffled within the group (training-time feature shuffle). ``model`` is a
     ``RelightDiffusion``, possibly wrapped for distributed training (called, never unwrapped).
+
+    ``terminal_fraction``: the share of targets whose timestep is the last one instead of a
+    uniform draw. One-step sampling (trailing DDIM) asks the model only at that timestep,
+    which uniform sampling visits once in ``num_train_timesteps`` draws. 0 draws nothing
+    extra, so the random stream of a run without it is unchanged.
     """
     images, light, camera = batch["images"], batch["light"], batch["camera"]
     b, v = images.shape[:2]
@@ -33,7 +42,11 @@ def diffusion_loss(
     base_x = unwrapped.residual_base(photo, light, camera)
     x0 = unwrapped.to_model_space(targets, base_x)
     noise = torch.randn(x0.shape, generator=generator).to(x0.device)
-    t = torch.randint(0, scheduler.config.num_train_timesteps, (x0.shape[0],), generator=generator).to(x0.device)
+    last = scheduler.config.num_train_timesteps - 1
+    t = torch.randint(0, last + 1, (x0.shape[0],), generator=generator)
+    if terminal_fraction > 0:
+        t = torch.where(torch.rand(t.shape, generator=generator) < terminal_fraction, last, t)
+    t = t.to(x0.device)
     x_t = scheduler.add_noise(x0, noise, t)
     target = scheduler.get_velocity(x0, noise, t)
     pred = model(x_t, t, photo, targets, light, camera, perm, base_x)

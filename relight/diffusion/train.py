@@ -49,6 +49,9 @@ class TrainConfig:
     # `ema/`: at lr 2e-4 and one group a step, checkpoints 5 steps apart differed by 0.7 dB
     # held-out PSNR (one-step sampling; 6900 vs 6905 steps of the shipped run).
     ema_decay: float = 0.0
+    # Share of targets trained at the last timestep, the only one one-step sampling uses
+    # (see relight.diffusion.objective.diffusion_loss); 0 = uniform timesteps.
+    terminal_fraction: float = 0.0
     seed: int = 0
     ablation: str = "full"
     base: str = "photo"  # tiny preset: residual relative to the photo or its Lambertian relighting
@@ -65,6 +68,8 @@ class TrainConfig:
             raise ValueError(f"lr_decay_from must lie in [0, steps), got {self.lr_decay_from} with steps {self.steps}")
         if not 0 <= self.ema_decay < 1:
             raise ValueError(f"ema_decay must lie in [0, 1), got {self.ema_decay}")
+        if not 0 <= self.terminal_fraction <= 1:
+            raise ValueError(f"terminal_fraction must lie in [0, 1], got {self.terminal_fraction}")
 
 
 LR_SCHEDULES = ("constant", "cosine")
@@ -175,7 +180,7 @@ def main(cfg: TrainConfig) -> Path:
     for batch in loader:
         if step >= cfg.steps or (cfg.minutes and time.time() - start > cfg.minutes * 60):
             break
-        loss = diffusion_loss(model, scheduler, batch)
+        loss = diffusion_loss(model, scheduler, batch, terminal_fraction=cfg.terminal_fraction)
         optimizer.zero_grad(set_to_none=True)
         accel.backward(loss)
         for group in optimizer.param_groups:

@@ -25,10 +25,10 @@ def test_cosine_holds_then_falls_to_zero_at_the_last_step():
 
 
 @pytest.mark.parametrize(
-    "kwargs", [dict(lr_schedule="linear"), dict(lr_schedule="cosine", lr_decay_from=5), dict(ema_decay=1.0)]
+    "kwargs", [dict(lr_schedule="linear"), dict(lr_schedule="cosine", lr_decay_from=5), dict(ema_decay=1.0), dict(terminal_fraction=1.5)]
 )
 def test_bad_schedule_is_refused_before_training(kwargs, tmp_path):
-    with pytest.raises(ValueError, match="lr_schedule|lr_decay_from|ema_decay"):
+    with pytest.raises(ValueError, match="lr_schedule|lr_decay_from|ema_decay|terminal_fraction"):
         train.main(TrainConfig(ckpt_dir=str(tmp_path), steps=5, **kwargs))
     assert not (tmp_path / "latest").exists()
 

@@ -277,3 +277,33 @@ def test_eval_compares_several_step_counts_in_one_run(tiny_model, tmp_path, caps
         assert main([*ev, str(tmp_path / "bad"), "--steps", bad]) == 2
         assert message in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()
+
+
+@pytest.mark.parametrize("fraction", [0.0, 0.5, 1.0])
+def test_terminal_fraction_sets_that_share_of_timesteps_to_the_last(tiny_model, group_batch, monkeypatch, fraction):
+    # One-step sampling only asks the model at the last timestep; the terminal share
+    # trains it there. 0 must leave the uniform draw (and the random stream) unchanged.
+    seen = []
+    original = tiny_model.denoise
+
+    def spy(x_t, t, *rest):
+        seen.append(t.clone())
+        return original(x_t, t, *rest)
+
+    monkeypatch.setattr(tiny_model, "denoise", spy)
+    scheduler = make_train_scheduler()
+    last = scheduler.config.num_train_timesteps - 1
+    batch = group_batch(b=8, v=8, size=tiny_model.config.resolution)  # 64 targets
+    diffusion_loss(tiny_model, scheduler, batch, torch.Generator().manual_seed(0), terminal_fraction=fraction)
+    diffusion_loss(tiny_model, scheduler, batch, torch.Generator().manual_seed(0))
+    with_share, uniform = seen
+    at_last = (with_share == last).float().mean().item()
+    if fraction == 0.0:
+        assert torch.equal(with_share, uniform)
+    elif fraction == 1.0:
+        assert at_last == 1.0
+    else:
+        # 64 Bernoulli(0.5) draws: 5 standard deviations either side is [0.19, 0.81]
+        assert 0.19 < at_last < 0.81
+        kept = with_share != last
+        assert torch.equal(with_share[kept], uniform[kept])  # the others keep their uniform draw
