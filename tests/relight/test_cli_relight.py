@@ -70,3 +70,13 @@ def test_eval_relight_cli(tmp_path, tiny_checkpoint, capsys):
     assert (out / "relight_eval.md").is_file() and (out / "relight_eval.png").is_file()
     assert main(["eval", "relight", "--count", "0", "--out", str(tmp_path / "e2")]) == 2
     assert "count must be in 1..64" in capsys.readouterr().err
+
+
+def test_generate_steps_help_names_the_pipeline_default(capsys):
+    # The help text is written without importing the diffusion package (it would slow
+    # every command); this keeps the number in it from drifting from the pipeline's.
+    from relight.diffusion import DEFAULT_STEPS
+
+    with pytest.raises(SystemExit):
+        main(["generate", "--help"])
+    assert f"(default {DEFAULT_STEPS})" in " ".join(capsys.readouterr().out.split())
