@@ -72,11 +72,12 @@ def test_eval_relight_cli(tmp_path, tiny_checkpoint, capsys):
     assert "count must be in 1..64" in capsys.readouterr().err
 
 
-def test_generate_steps_help_names_the_pipeline_default(capsys):
-    # The help text is written without importing the diffusion package (it would slow
-    # every command); this keeps the number in it from drifting from the pipeline's.
+@pytest.mark.parametrize("command, text", [(["generate"], "(default {})"), (["eval", "relight"], "{} for diffusion")])
+def test_steps_help_names_the_pipeline_default(capsys, command, text):
+    # The help texts are written without importing the diffusion package (it would slow
+    # every command); this keeps the number in them from drifting from the pipeline's.
     from relight.diffusion import DEFAULT_STEPS
 
     with pytest.raises(SystemExit):
-        main(["generate", "--help"])
-    assert f"(default {DEFAULT_STEPS})" in " ".join(capsys.readouterr().out.split())
+        main([*command, "--help"])
+    assert text.format(DEFAULT_STEPS) in " ".join(capsys.readouterr().out.split())
