@@ -8,7 +8,7 @@ from diffusers import DDPMScheduler
 
 from relight.modules import shuffle_within_groups
 
-__all__ = ["diffusion_loss"]
+__all__ = ["diffusion_loss", "pure_noise_velocity"]
 
 
 def diffusion_loss(
@@ -29,7 +29,8 @@ def diffusion_loss(
     ``terminal_fraction``: the share of targets whose timestep is the last one instead of a
     uniform draw. One-step sampling (trailing DDIM) asks the model only at that timestep,
     which uniform sampling visits once in ``num_train_timesteps`` draws. 0 draws nothing
-    extra, so the random stream of a run without it is unchanged.
+    extra, so the random stream of a run without it is unchanged. With a share, every
+    target at the last timestep starts from pure noise (``pure_noise_velocity``).
     """
     images, light, camera = batch["images"], batch["light"], batch["camera"]
     b, v = images.shape[:2]
@@ -49,5 +50,20 @@ def diffusion_loss(
     t = t.to(x0.device)
     x_t = scheduler.add_noise(x0, noise, t)
     target = scheduler.get_velocity(x0, noise, t)
+    if terminal_fraction > 0:
+        # Trained as one-step sampling is run: from pure noise. The schedule leaves
+        # sqrt(alpha_bar) = 0.068 of x0 in x_t at the last timestep, a trace the model
+        # could learn to read and never gets at inference.
+        pure = (t == last).view(-1, 1, 1, 1)
+        alpha_bar = scheduler.alphas_cumprod[last].to(x0)
+        x_t = torch.where(pure, noise, x_t)
+        target = torch.where(pure, pure_noise_velocity(x0, noise, alpha_bar), target)
     pred = model(x_t, t, photo, targets, light, camera, perm, base_x)
     return F.mse_loss(pred, target)
+
+
+def pure_noise_velocity(x0: torch.Tensor, noise: torch.Tensor, alpha_bar: torch.Tensor) -> torch.Tensor:
+    """The v target for input ``x_t = noise`` (no trace of ``x0``) at a timestep with
+    cumulative alpha ``alpha_bar``: the v whose DDIM estimate of x0,
+    ``sqrt(alpha_bar) x_t - sqrt(1 - alpha_bar) v``, is ``x0`` exactly. Any shape."""
+    return (alpha_bar.sqrt() * noise - x0) / (1 - alpha_bar).sqrt()

@@ -4,8 +4,9 @@ import pytest
 import torch
 from accelerate.utils import set_seed
 
-from relight.diffusion import RelightDiffusion, RelightPipeline, make_train_scheduler
-from relight.diffusion.objective import diffusion_loss
+from relight.diffusion import RelightDiffusion, RelightPipeline, make_sample_scheduler, make_train_scheduler
+from relight.diffusion.objective import diffusion_loss, pure_noise_velocity
+from relight.modules import shuffle_within_groups
 from relight.modules.ip_attention import decoupled_processors
 
 
@@ -307,3 +308,31 @@ def test_terminal_fraction_sets_that_share_of_timesteps_to_the_last(tiny_model, 
         assert 0.19 < at_last < 0.81
         kept = with_share != last
         assert torch.equal(with_share[kept], uniform[kept])  # the others keep their uniform draw
+
+
+def test_pure_noise_velocity_makes_the_one_step_sampler_return_x0():
+    gen = torch.Generator().manual_seed(0)
+    x0, noise = torch.randn(2, 3, 8, 8, generator=gen), torch.randn(2, 3, 8, 8, generator=gen)
+    scheduler = make_sample_scheduler()
+    scheduler.set_timesteps(1)
+    (t,) = scheduler.timesteps
+    v = pure_noise_velocity(x0.double(), noise.double(), scheduler.alphas_cumprod[t].double())
+    out = scheduler.step(v, t, noise.double())
+    assert torch.allclose(out.pred_original_sample, x0.double(), atol=1e-12)
+
+
+def test_terminal_targets_start_from_pure_noise(tiny_model, group_batch, monkeypatch):
+    seen = []
+    original = tiny_model.denoise
+
+    def spy(x_t, t, *rest):
+        seen.append(x_t.clone())
+        return original(x_t, t, *rest)
+
+    monkeypatch.setattr(tiny_model, "denoise", spy)
+    batch = group_batch(b=1, v=4, size=tiny_model.config.resolution)
+    diffusion_loss(tiny_model, make_train_scheduler(), batch, torch.Generator().manual_seed(0), terminal_fraction=1.0)
+    # the same generator draws the same noise: the permutation first, then the noise
+    gen = torch.Generator().manual_seed(0)
+    shuffle_within_groups(4, 4, gen)
+    assert torch.equal(seen[0], torch.randn(seen[0].shape, generator=gen))
