@@ -120,8 +120,11 @@ def _expand_steps(relighters: dict, steps: list[int]) -> dict:
 
 def run(args) -> int:
     from materials.io.atomic import atomic_folder
+    from matcap.estimator_relighter import register
     from relight.evaluate import EvalConfig, evaluate, format_table, write_report
     from relight.interface import get_relighter, relighter_names
+
+    register()  # the estimator's 1-input maps re-rendered: a Table-1 baseline
 
     steps = _steps_list(args.steps)  # before any model is loaded
     cfg = EvalConfig(count=args.count, size=args.size, chunk=args.chunk, samples=args.samples, seed=args.seed)

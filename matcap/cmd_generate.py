@@ -35,7 +35,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    "default: the 7 evaluation lights")
     p.add_argument("--camera", default=",".join(str(v) for v in EVAL_CAMERA), metavar="X,Y,Z",
                    help="camera (and flash) position (default %(default)s)")
-    p.add_argument("--model", default="bieron", help="relighter: bieron, lambertian, input, or any "
+    p.add_argument("--model", default="bieron", help="relighter: bieron, diffusion, estimator, lambertian, input, or any "
                    "registered one (default %(default)s)")
     p.add_argument("--checkpoint", type=Path, default=None, help="model folder (default: the shipped weights)")
     p.add_argument("--seed", type=int, default=0, help="seed of stochastic models")
@@ -62,8 +62,10 @@ def read_photo(path: Path) -> torch.Tensor:
 
 def run(args) -> int:
     from materials.io.atomic import atomic_folder
+    from matcap.estimator_relighter import register
     from relight.interface import get_relighter
 
+    register()
     camera = torch.tensor(parse_position(args.camera, "--camera"))
     lights = positions_or_default(args.light, torch.tensor(EVAL_LIGHTS, dtype=torch.float32), "--light")
     photo = read_photo(args.photo)
