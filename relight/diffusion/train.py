@@ -49,8 +49,9 @@ class TrainConfig:
     # `ema/`: at lr 2e-4 and one group a step, checkpoints 5 steps apart differed by 0.7 dB
     # held-out PSNR (one-step sampling; 6900 vs 6905 steps of the shipped run).
     ema_decay: float = 0.0
-    # Share of targets trained at the last timestep, the only one one-step sampling uses
-    # (see relight.diffusion.objective.diffusion_loss); 0 = uniform timesteps.
+    # Share of targets trained at the last timestep from pure noise, as one-step sampling
+    # asks the model (relight.diffusion.objective.diffusion_loss); 0 = uniform timesteps.
+    # The shipped weights' stage 2 used 0.5 (relight/weights/diffusion/TRAINING.md).
     terminal_fraction: float = 0.0
     seed: int = 0
     ablation: str = "full"
