@@ -100,6 +100,8 @@ def _steps_list(text: str | None) -> list[int] | None:
 def _expand_steps(relighters: dict, steps: list[int]) -> dict:
     """Apply ``--steps`` to the sampling relighters; with several values, each sampling
     method becomes one entry per value (shallow copies sharing the model)."""
+    from relight.evaluate import step_count
+
     sampling = [n for n, r in relighters.items() if getattr(r, "stochastic", False)]
     if not sampling:
         raise UsageError(f"--steps applies to sampling methods (diffusion); none of {', '.join(relighters)} samples")
@@ -114,7 +116,7 @@ def _expand_steps(relighters: dict, steps: list[int]) -> dict:
             for n in steps:
                 variant = copy.copy(relighter)
                 set_sampling(variant, name, n)
-                out[f"{name} ({n} step{'s' if n > 1 else ''})"] = variant
+                out[f"{name} ({step_count(n)})"] = variant
     return out
 
 

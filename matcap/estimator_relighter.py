@@ -38,12 +38,11 @@ class EstimatorRelighter(Relighter):
         self.preset = preset
 
     def _relight(self, photo, camera, lights, *, generator=None):
-        out = []
+        out, k = [], lights.shape[1]
         for b in range(photo.shape[0]):
             cam = camera[b : b + 1].float()
             capture = Capture(photo[b : b + 1].float(), cam, cam, preset=self.preset)
             material, _ = estimate_material(capture, self.model, progress=False)
-            k = lights.shape[1]
             with torch.no_grad():
                 rendered = kernels.render(
                     *(t[None] for t in material.map_tensors()), lights[b : b + 1].float(),

@@ -41,8 +41,13 @@ from relight.interface import Relighter
 
 __all__ = [
     "EvalConfig", "EvalData", "load_eval_data", "evaluate", "write_report", "format_table", "format_per_material",
-    "EVAL_CROP_SEED",
+    "EVAL_CROP_SEED", "step_count",
 ]
+
+def step_count(n: int, what: str = "step") -> str:
+    """``"1 step"``, ``"10 steps"``: how row labels and reports name a sampling step count."""
+    return f"{n} {what}{'s' if n != 1 else ''}"
+
 
 #: Seed of the evaluation crops (``GroupConfig.seed``); the materials come from EVAL_SEEDS.
 EVAL_CROP_SEED = 0
@@ -313,8 +318,7 @@ def write_report(result: dict, folder: Path, command: str | None = None) -> list
     md += [format_table(result), ""]
     for r in result["rows"]:
         if "sampling_steps" in r:
-            n = r["sampling_steps"]
-            md.append(f"{r['method']}: {n} sampling step{'s' if n != 1 else ''} per sample.")
+            md.append(f"{r['method']}: {step_count(r['sampling_steps'], 'sampling step')} per sample.")
         if "std_error_corr" in r:
             md.append(f"{r['method']}: Pearson correlation between the per-pixel std across samples and the "
                       f"absolute error of the mean: {r['std_error_corr']:.3f}.")

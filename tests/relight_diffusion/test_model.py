@@ -280,24 +280,30 @@ def test_eval_compares_several_step_counts_in_one_run(tiny_model, tmp_path, caps
     assert not (tmp_path / "bad").exists()
 
 
-@pytest.mark.parametrize("fraction", [0.0, 0.5, 1.0])
-def test_terminal_fraction_sets_that_share_of_timesteps_to_the_last(tiny_model, group_batch, monkeypatch, fraction):
-    # One-step sampling only asks the model at the last timestep; the terminal share
-    # trains it there. 0 must leave the uniform draw (and the random stream) unchanged.
-    seen = []
+@pytest.fixture
+def denoise_inputs(tiny_model, monkeypatch):
+    """``(x_t, t)`` of every ``tiny_model.denoise`` call, in order."""
+    calls = []
     original = tiny_model.denoise
 
     def spy(x_t, t, *rest):
-        seen.append(t.clone())
+        calls.append((x_t.clone(), t.clone()))
         return original(x_t, t, *rest)
 
     monkeypatch.setattr(tiny_model, "denoise", spy)
+    return calls
+
+
+@pytest.mark.parametrize("fraction", [0.0, 0.5, 1.0])
+def test_terminal_fraction_sets_that_share_of_timesteps_to_the_last(tiny_model, group_batch, denoise_inputs, fraction):
+    # One-step sampling only asks the model at the last timestep; the terminal share
+    # trains it there. 0 must leave the uniform draw (and the random stream) unchanged.
     scheduler = make_train_scheduler()
     last = scheduler.config.num_train_timesteps - 1
     batch = group_batch(b=8, v=8, size=tiny_model.config.resolution)  # 64 targets
     diffusion_loss(tiny_model, scheduler, batch, torch.Generator().manual_seed(0), terminal_fraction=fraction)
     diffusion_loss(tiny_model, scheduler, batch, torch.Generator().manual_seed(0))
-    with_share, uniform = seen
+    (_, with_share), (_, uniform) = denoise_inputs
     at_last = (with_share == last).float().mean().item()
     if fraction == 0.0:
         assert torch.equal(with_share, uniform)
@@ -321,18 +327,11 @@ def test_pure_noise_velocity_makes_the_one_step_sampler_return_x0():
     assert torch.allclose(out.pred_original_sample, x0.double(), atol=1e-12)
 
 
-def test_terminal_targets_start_from_pure_noise(tiny_model, group_batch, monkeypatch):
-    seen = []
-    original = tiny_model.denoise
-
-    def spy(x_t, t, *rest):
-        seen.append(x_t.clone())
-        return original(x_t, t, *rest)
-
-    monkeypatch.setattr(tiny_model, "denoise", spy)
+def test_terminal_targets_start_from_pure_noise(tiny_model, group_batch, denoise_inputs):
     batch = group_batch(b=1, v=4, size=tiny_model.config.resolution)
     diffusion_loss(tiny_model, make_train_scheduler(), batch, torch.Generator().manual_seed(0), terminal_fraction=1.0)
     # the same generator draws the same noise: the permutation first, then the noise
     gen = torch.Generator().manual_seed(0)
     shuffle_within_groups(4, 4, gen)
-    assert torch.equal(seen[0], torch.randn(seen[0].shape, generator=gen))
+    ((x_t, _),) = denoise_inputs
+    assert torch.equal(x_t, torch.randn(x_t.shape, generator=gen))
