@@ -18,6 +18,13 @@ was raised for the fine-tuning run of the shipped model (``estimator/weights/TRA
 procedural normals are close to flat, so their L1 is the smallest of the four terms and
 its gradient the weakest, and the 8-view model had not learnt to read relief from the
 extra lightings.
+
+``normal_loss="mse"`` replaces the normal L1 by ``NORMAL_MSE_SCALE`` times its mean squared
+error. Why: procedural relief is sparse (most pixels near flat, a few steep grooves), and
+the L1-optimal guess under uncertain evidence is the per-pixel median, i.e. flat; a network
+trained with L1 settles there, while the evaluation's normal MSE rewards the mean, which
+moves off flat as soon as the shading carries any evidence (measured: ``estimator/DESIGN.md``,
+"The normal map").
 """
 
 from __future__ import annotations
@@ -29,7 +36,7 @@ import torch
 import kernels
 from materials.types import Material
 
-__all__ = ["map_l1", "estimator_loss", "MAP_WEIGHT", "RENDER_WEIGHT", "NORMAL_WEIGHT"]
+__all__ = ["map_l1", "estimator_loss", "MAP_WEIGHT", "RENDER_WEIGHT", "NORMAL_WEIGHT", "NORMAL_MSE_SCALE", "NORMAL_LOSSES"]
 
 #: Default weight of the summed per-map L1 (module docstring).
 MAP_WEIGHT = 1.0
@@ -37,6 +44,12 @@ MAP_WEIGHT = 1.0
 RENDER_WEIGHT = 1.0
 #: Default weight of the normal map's L1 inside the map term (module docstring).
 NORMAL_WEIGHT = 1.0
+#: Scale of the normal MSE (``normal_loss="mse"``) so that it is of the size of the L1 it
+#: replaces: held-out normal residuals are ~0.045 rms (flat-map MSE 0.002, L1 0.021), so
+#: 10 x MSE ~ 0.02 ~ L1, and its gradient per element (20 r ~ 0.9) ~ the L1's (1).
+NORMAL_MSE_SCALE = 10.0
+#: Accepted ``normal_loss`` values.
+NORMAL_LOSSES = ("l1", "mse")
 
 
 def map_l1(pred: Material, target: Material) -> dict[str, torch.Tensor]:
@@ -51,6 +64,7 @@ def estimator_loss(
     map_weight: float = MAP_WEIGHT,
     render_weight: float = RENDER_WEIGHT,
     normal_weight: float = NORMAL_WEIGHT,
+    normal_loss: str = "l1",
     generator: torch.Generator | None = None,
     map_render_loss_fn: Callable[..., torch.Tensor] = kernels.map_rendering_loss,
 ) -> dict[str, torch.Tensor]:
@@ -59,21 +73,29 @@ def estimator_loss(
     Args:
         pred, target: batched Materials ``[B, C, H, W]`` (linear maps, unit normals).
         map_weight, render_weight: weights of the two terms (module docstring).
-        normal_weight: weight of the normal L1 inside the map term.
+        normal_weight: weight of the normal term inside the map term.
+        normal_loss: ``"l1"`` (the normal L1, like the other maps) or ``"mse"``
+            (``NORMAL_MSE_SCALE`` x the normal MSE; module docstring).
         generator: drives the random lights of the rendering loss (a fixed seed gives
             fixed lights, e.g. for an overfitting test).
         map_render_loss_fn: ``kernels.map_rendering_loss`` or a function with its signature.
     Returns:
         dict with ``loss`` (the weighted total, differentiable), ``map`` (the map term,
-        normal L1 weighted by ``normal_weight``),
-        ``render`` and the four per-map L1s, all scalars.
+        normal term weighted by ``normal_weight``), ``render``, the four per-map L1s and
+        ``normal_mse``, all scalars.
+    Raises:
+        ValueError: an unknown ``normal_loss``.
     """
+    if normal_loss not in NORMAL_LOSSES:
+        raise ValueError(f"normal_loss must be one of {NORMAL_LOSSES}, got {normal_loss!r}")
     parts = map_l1(pred, target)
-    map_total = sum(normal_weight * v if name == "normal" else v for name, v in parts.items())
+    normal_mse = ((pred.normal - target.normal) ** 2).mean()
+    normal_term = parts["normal"] if normal_loss == "l1" else NORMAL_MSE_SCALE * normal_mse
+    map_total = sum(normal_weight * normal_term if name == "normal" else v for name, v in parts.items())
     render = (
         map_render_loss_fn(pred.map_tensors(), target.map_tensors(), generator=generator)
         if render_weight
         else torch.zeros((), dtype=pred.dtype, device=pred.device)
     )
     loss = map_weight * map_total + render_weight * render
-    return {"loss": loss, "map": map_total, "render": render, **parts}
+    return {"loss": loss, "map": map_total, "render": render, **parts, "normal_mse": normal_mse}

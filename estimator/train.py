@@ -31,7 +31,7 @@ from tqdm.auto import tqdm
 
 from estimator.checkpoint import latest_checkpoint, load_checkpoint, read_trainer_state, save_checkpoint
 from estimator.config import EstimatorConfig
-from estimator.losses import MAP_WEIGHT, NORMAL_WEIGHT, RENDER_WEIGHT, estimator_loss
+from estimator.losses import MAP_WEIGHT, NORMAL_LOSSES, NORMAL_WEIGHT, RENDER_WEIGHT, estimator_loss
 from estimator.model import SVBRDFEstimator
 from materials.dataset import TRAIN_SEEDS, GroupConfig, RenderedGroups
 from materials.io.atomic import atomic_file, atomic_folder
@@ -59,6 +59,7 @@ class TrainConfig:
         min_views: the smallest N (1: every count; 8 with ``max_views`` 8: always all
             views, e.g. a phase that trains what only several views reveal).
         map_weight, render_weight, normal_weight: loss weights (``estimator.losses``).
+        normal_loss: ``"l1"`` or ``"mse"``, the normal map's term (``estimator.losses``).
         init_from: a saved estimator folder (``save_pretrained``) whose weights start the
             run, e.g. the shipped model for a fine-tuning run; its architecture must equal
             ``model``. A resumed run of the same fine-tuning continues from its
@@ -88,6 +89,7 @@ class TrainConfig:
     map_weight: float = MAP_WEIGHT
     render_weight: float = RENDER_WEIGHT
     normal_weight: float = NORMAL_WEIGHT
+    normal_loss: str = "l1"
     init_from: str | None = None
     out_dir: str = "runs/estimator"
     ckpt_dir: str = "/work/ckpt/estimator"
@@ -105,6 +107,8 @@ class TrainConfig:
         for name in ("steps", "batch_size", "max_views", "min_views", "ckpt_every", "log_every", "keep_checkpoints"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if self.normal_loss not in NORMAL_LOSSES:
+            raise ValueError(f"normal_loss must be one of {NORMAL_LOSSES}, got {self.normal_loss!r}")
         if self.min_views > self.max_views:
             raise ValueError(f"min_views ({self.min_views}) must not exceed max_views ({self.max_views})")
         if self.size % self.model.downsample_factor:
@@ -260,7 +264,7 @@ def main(cfg: TrainConfig) -> Path:
         pred = model(batch["images"][:, views], batch["light"][:, views], batch["camera"][:, views])
         parts = estimator_loss(
             pred, Material.from_stacked(batch["maps"]), map_weight=cfg.map_weight, render_weight=cfg.render_weight,
-            normal_weight=cfg.normal_weight, generator=_step_generator(cfg.seed, step, stream=2),
+            normal_weight=cfg.normal_weight, normal_loss=cfg.normal_loss, generator=_step_generator(cfg.seed, step, stream=2),
         )
         optimizer.zero_grad(set_to_none=True)
         accelerator.backward(parts["loss"])
