@@ -29,6 +29,9 @@ class EstimatorConfig:
         adapter_width: hidden channels of each per-map adapter head.
         norm_groups: GroupNorm groups (reduced to a divisor of the channel count).
         plane_size: side of the material plane used for the l/v/h maps (``dgrsise``: 4).
+        shading_channels: width of the full-resolution shading branch that feeds the normal
+            map (``estimator/DESIGN.md``, "Shading branch"); 0 leaves it out (the
+            architecture before 2026-12-02). Checkpoints saved without the field have none.
     """
 
     base_channels: int = 16
@@ -37,6 +40,7 @@ class EstimatorConfig:
     adapter_width: int = 32
     norm_groups: int = 8
     plane_size: float = 4.0
+    shading_channels: int = 16
 
     def __post_init__(self) -> None:
         if self.base_channels < 1 or self.adapter_width < 1 or self.norm_groups < 1:
@@ -46,6 +50,11 @@ class EstimatorConfig:
             )
         if len(self.channel_mults) < 1 or any(int(m) < 1 for m in self.channel_mults):
             raise ValueError(f"channel_mults must be a non-empty tuple of positive ints, got {self.channel_mults}")
+        if self.shading_channels < 0:
+            raise ValueError(f"shading_channels must be >= 0, got {self.shading_channels}")
+        if self.shading_channels and len(self.channel_mults) < 2:
+            # The branch rides on the level-0 skip, which with one level is the latent.
+            raise ValueError("shading_channels needs at least two levels (channel_mults)")
         if self.blocks_per_level < 0:
             raise ValueError(f"blocks_per_level must be >= 0, got {self.blocks_per_level}")
         if self.plane_size <= 0:
@@ -62,4 +71,6 @@ class EstimatorConfig:
 
 
 #: The tiny architecture used by the fast tests (32 x 32 images, a few thousand params).
-TINY_TEST_CONFIG = EstimatorConfig(base_channels=8, channel_mults=(1, 2, 4), adapter_width=8, norm_groups=4)
+TINY_TEST_CONFIG = EstimatorConfig(
+    base_channels=8, channel_mults=(1, 2, 4), adapter_width=8, norm_groups=4, shading_channels=4
+)

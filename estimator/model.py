@@ -21,13 +21,21 @@ Data flow for a batch of B materials seen in V views (any V >= 1), shapes symbol
 5. Shared U-Net decoder back to full resolution, then one small adapter head per map:
    diffuse (3, sigmoid), normal (3: x, y = tanh, z = sigmoid in [NORMAL_MIN_Z, 1], then
    normalised, so z > 0), roughness (1, sigmoid), specular (3, sigmoid).
+6. Shading branch (``shading_channels`` > 0): a narrow full-resolution per-view path on
+   the log image, its ratio to the views' mean (albedo cancels: what is left is shading)
+   and the l/v/h map, with its own cross-view correlation and pooling. A zero-initialised
+   head reads it with the decoder features and adds to the normal head's x, y logits:
+   the trunk is trained to see through the lighting (for the diffuse map), the branch to
+   read it (``DESIGN.md``, "Shading branch").
 
 Output: a batched ``materials.types.Material`` (maps ``[B, C, H, W]``, linear, float32).
 """
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 from typing import Iterator, Sequence
 
 import torch
@@ -50,6 +58,10 @@ INPUT_SCALE = 0.5
 #: Smallest normal z before normalisation: with |x|, |y| <= 1 this allows tilts up to
 #: atan(sqrt(2) / 0.05) ~ 88 degrees while keeping z strictly positive (SPEC: normals face out).
 NORMAL_MIN_Z = 0.05
+#: The view log-ratios ``log x_v - mean_v log x`` are ~0.05 for a few degrees of relief
+#: under a side light; x4 brings them to the ~0.2 scale of the other inputs before the
+#: first conv (GroupNorm follows it).
+RATIO_SCALE = 4.0
 #: Initial bias of the normal head's z logit: sigmoid(2) ~ 0.88 with x, y ~ 0, i.e. the
 #: untrained model starts from flat normals rather than random tilts.
 NORMAL_Z_BIAS = 2.0
@@ -112,6 +124,30 @@ class GlobalContext(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return x + self.linear(F.silu(x.mean((2, 3))))[..., None, None]
+
+
+class ShadingBranch(nn.Module):
+    """Full-resolution per-view shading features, pooled over views (module docstring, 6).
+
+    ``[B * V, 3 + 3 + 9, H, W]`` (encoded log image, ``RATIO_SCALE`` x its log-ratio to the
+    mean over views, l/v/h) -> two 3x3 blocks -> ``CrossViewMix`` -> one 3x3 block ->
+    ``ViewPool`` -> ``[B, C_s, H, W]``. With V = 1 the ratio is zero: one view leaves only
+    the image and its lighting geometry.
+    """
+
+    def __init__(self, channels: int, groups: int):
+        super().__init__()
+        self.encode = nn.Sequential(ConvBlock(3 + 3 + 9, channels, groups), ConvBlock(channels, channels, groups))
+        self.mix = CrossViewMix(channels, groups)
+        self.post = ConvBlock(channels, channels, groups)
+        self.pool = ViewPool(channels)
+
+    def forward(self, encoded: torch.Tensor, log_image: torch.Tensor, lvh: torch.Tensor) -> torch.Tensor:
+        """``encoded``, ``log_image``: ``[B, V, 3, H, W]``; ``lvh``: ``[B, V, 9, H, W]``."""
+        views = log_image.shape[1]
+        ratio = (log_image - log_image.mean(1, keepdim=True)) * RATIO_SCALE
+        x = self.encode(torch.cat([encoded, ratio, lvh], dim=2).flatten(0, 1))
+        return self.pool(self.post(self.mix(x, views)), views)
 
 
 class AdapterHead(nn.Module):
@@ -194,6 +230,7 @@ class SVBRDFEstimator(ModelMixin, ConfigMixin):
         adapter_width: int = 32,
         norm_groups: int = 8,
         plane_size: float = 4.0,
+        shading_channels: int = 16,
     ):
         super().__init__()
         arch = EstimatorConfig(
@@ -203,6 +240,7 @@ class SVBRDFEstimator(ModelMixin, ConfigMixin):
             adapter_width=adapter_width,
             norm_groups=norm_groups,
             plane_size=plane_size,
+            shading_channels=shading_channels,
         )
         self.arch = arch
         widths = [base_channels * m for m in arch.channel_mults]
@@ -237,6 +275,23 @@ class SVBRDFEstimator(ModelMixin, ConfigMixin):
         )
         with torch.no_grad():
             self.heads["normal"].out.bias[2].fill_(NORMAL_Z_BIAS)
+        self.shading = ShadingBranch(shading_channels, g) if shading_channels else None
+        # Reads decoder + shading features, adds to the normal x, y logits; zero output at
+        # initialisation, so a model grown from one without the branch starts unchanged.
+        self.shading_head = AdapterHead(widths[0] + shading_channels, adapter_width, 2, g) if shading_channels else None
+        if self.shading_head is not None:
+            nn.init.zeros_(self.shading_head.out.weight)
+            nn.init.zeros_(self.shading_head.out.bias)
+
+    @classmethod
+    def from_pretrained(cls, pretrained_model_name_or_path, **kwargs):
+        """diffusers' ``from_pretrained``; a local checkpoint saved before the shading
+        branch existed (no ``shading_channels`` in its config.json) loads without one,
+        rather than with today's default and uninitialised branch weights."""
+        config = Path(pretrained_model_name_or_path) / kwargs.get("subfolder", "") / cls.config_name
+        if config.is_file() and "shading_channels" not in json.loads(config.read_text()):
+            kwargs.setdefault("shading_channels", 0)
+        return super().from_pretrained(pretrained_model_name_or_path, **kwargs)
 
     # ------------------------------------------------------------------ stages
     def encode(self, images: torch.Tensor, light: torch.Tensor, camera: torch.Tensor) -> list[torch.Tensor]:
@@ -247,7 +302,9 @@ class SVBRDFEstimator(ModelMixin, ConfigMixin):
             light, camera: ``[B, V, 3]`` or ``[V, 3]`` positions (``dgrsise`` scene units).
         Returns:
             The pooled pyramid, one ``[B, C_i, H / 2^i, W / 2^i]`` per level; the last is
-            the bottleneck latent (global context already added).
+            the bottleneck latent (global context already added). With the shading branch,
+            level 0 carries its ``C_s`` channels after the ``C_0`` skip channels
+            (``decode`` passes them on to the heads).
         """
         images, light, camera = check_views(images, light, camera, multiple=self.arch.downsample_factor)
         b, v, _, h, w = images.shape
@@ -256,19 +313,28 @@ class SVBRDFEstimator(ModelMixin, ConfigMixin):
             light.detach().to(dtype).contiguous(), camera.detach().to(dtype).contiguous(), (h, w),
             plane_size=self.arch.plane_size,
         )
-        x = (torch.log(images.to(dtype).clamp_min(0) + kernels.LOG_EPS) + INPUT_SHIFT) * INPUT_SCALE
-        x = torch.cat([x, lvh.to(x.device)], dim=2).flatten(0, 1)
+        log_image = torch.log(images.to(dtype).clamp_min(0) + kernels.LOG_EPS)
+        encoded = (log_image + INPUT_SHIFT) * INPUT_SCALE
+        lvh = lvh.to(encoded.device)
+        x = torch.cat([encoded, lvh], dim=2).flatten(0, 1)
         pyramid = []
         for enc, mix, pool in zip(self.encoder, self.mix, self.pool):
             x = mix(enc(x), v)
             pyramid.append(pool(x, v))
         pyramid[-1] = self.context(pyramid[-1])
+        if self.shading is not None:
+            pyramid[0] = torch.cat([pyramid[0], self.shading(encoded, log_image, lvh)], dim=1)
         return pyramid
 
     def decode(self, pyramid: Sequence[torch.Tensor], latent_offset: torch.Tensor | None = None) -> torch.Tensor:
         """Shared decoder: pyramid (+ ``latent_offset`` on the bottleneck, same shape as
-        ``pyramid[-1]``) -> full-resolution features ``[B, C_0, H, W]``."""
+        ``pyramid[-1]``) -> full-resolution features ``[B, C_0 (+ C_s), H, W]`` (the decoder's,
+        then the shading branch's when there is one)."""
         x = pyramid[-1]
+        skip0 = pyramid[0]
+        c0 = self.arch.base_channels * self.arch.channel_mults[0]
+        if self.shading is not None:
+            pyramid = [skip0[:, :c0], *pyramid[1:]]
         if latent_offset is not None:
             if latent_offset.shape != x.shape:
                 raise ValueError(f"latent_offset must have shape {tuple(x.shape)}, got {tuple(latent_offset.shape)}")
@@ -276,13 +342,16 @@ class SVBRDFEstimator(ModelMixin, ConfigMixin):
         for block, skip in zip(self.decoder, reversed(pyramid[:-1])):
             x = F.interpolate(x, size=skip.shape[-2:], mode="nearest")
             x = block(torch.cat([x, skip], dim=1))
-        return x
+        return torch.cat([x, skip0[:, c0:]], dim=1) if self.shading is not None else x
 
     def predict_maps(self, features: torch.Tensor) -> Material:
-        """Adapter heads: decoder features ``[B, C_0, H, W]`` -> Material (maps in [0, 1],
-        unit normals with z > 0)."""
+        """Adapter heads: ``decode``'s features ``[B, C_0 (+ C_s), H, W]`` -> Material (maps
+        in [0, 1], unit normals with z > 0)."""
+        both, features = features, features[:, : self.arch.base_channels * self.arch.channel_mults[0]]
         diffuse = torch.sigmoid(self.heads["diffuse"](features))
         raw = self.heads["normal"](features)
+        if self.shading_head is not None:
+            raw = torch.cat([raw[:, :2] + self.shading_head(both), raw[:, 2:]], dim=1)
         z = NORMAL_MIN_Z + (1 - NORMAL_MIN_Z) * torch.sigmoid(raw[:, 2:3])
         normal = F.normalize(torch.cat([torch.tanh(raw[:, :2]), z], dim=1), dim=1)
         roughness = torch.sigmoid(self.heads["roughness"](features))
@@ -306,8 +375,11 @@ class SVBRDFEstimator(ModelMixin, ConfigMixin):
 
     # ------------------------------------------------------------------ parameter groups
     def adapter_parameters(self) -> Iterator[nn.Parameter]:
-        """Parameters of the per-map adapter heads (what refinement fine-tunes)."""
-        return self.heads.parameters()
+        """Parameters of the per-map adapter heads, the shading head included (what
+        refinement fine-tunes)."""
+        yield from self.heads.parameters()
+        if self.shading_head is not None:
+            yield from self.shading_head.parameters()
 
     def latent_shape(self, batch: int, size: tuple[int, int]) -> tuple[int, int, int, int]:
         """Shape of the bottleneck latent for ``batch`` images of ``size`` (H, W)."""

@@ -62,7 +62,8 @@ class TrainConfig:
         normal_loss: ``"l1"`` or ``"mse"``, the normal map's term (``estimator.losses``).
         init_from: a saved estimator folder (``save_pretrained``) whose weights start the
             run, e.g. the shipped model for a fine-tuning run; its architecture must equal
-            ``model``. A resumed run of the same fine-tuning continues from its
+            ``model``, or be ``model`` without the shading branch (the branch then starts
+            from its initialisation, ``_load_initial_weights``). A resumed run of the same fine-tuning continues from its
             checkpoint; resuming a checkpoint of another run is refused. The optimizer
             and schedule start fresh.
         out_dir: where the final model, loss curve and history are exported.
@@ -192,15 +193,23 @@ def plot_history(history: list[dict], path: str | Path, *, smooth: int = 25) -> 
 
 
 def _load_initial_weights(model: SVBRDFEstimator, cfg: TrainConfig) -> None:
-    """Copy the weights of the saved estimator ``cfg.init_from`` into ``model``."""
+    """Copy the weights of the saved estimator ``cfg.init_from`` into ``model``.
+
+    The saved architecture must equal ``cfg.model``, or be it without the shading branch
+    (a checkpoint from before the branch, or one saved with ``shading_channels=0``): then
+    every saved weight is copied and the branch keeps its initialisation, whose
+    zero-initialised head leaves the model's output equal to the saved model's.
+    """
     folder = Path(cfg.init_from)
     if not (folder / "config.json").is_file():
         raise FileNotFoundError(f"init_from: {folder} is not a saved estimator (no config.json)")
     source = SVBRDFEstimator.from_pretrained(folder)
-    saved = EstimatorConfig(**{k: source.config[k] for k in cfg.model.to_dict()})
-    if saved != cfg.model:
+    saved = source.arch
+    grows = saved.shading_channels == 0 and dataclasses.replace(saved, shading_channels=cfg.model.shading_channels) == cfg.model
+    if saved != cfg.model and not grows:
         raise ValueError(f"init_from: {folder} has architecture {saved}, the run asks for {cfg.model}")
-    model.load_state_dict(source.state_dict())
+    missing, unexpected = model.load_state_dict(source.state_dict(), strict=False)
+    assert not unexpected and all(k.startswith(("shading.", "shading_head.")) for k in missing), (missing, unexpected)
 
 
 def main(cfg: TrainConfig) -> Path:

@@ -120,3 +120,53 @@ def test_bad_input_raises_value_error_naming_argument(tiny_model, mutate, name, 
 
 def test_tiny_config_is_small():
     assert sum(p.numel() for p in SVBRDFEstimator(**TINY_TEST_CONFIG.to_dict()).parameters()) < 50_000
+
+
+def _with_live_shading_head(model: SVBRDFEstimator, seed: int) -> SVBRDFEstimator:
+    """The shading head's output layer starts at zero (a grown model starts unchanged);
+    give it weights so that tests see the branch."""
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        out = model.shading_head.out
+        out.weight.copy_(torch.randn(out.weight.shape, generator=g) * 0.5)
+    return model
+
+
+def test_shading_branch_is_read_and_symmetric(tiny_model, random_views):
+    images, light, camera = random_views(2, 6, seed=11)
+    with torch.no_grad():
+        silent = tiny_model(images, light, camera)
+        live = _with_live_shading_head(tiny_model, seed=0)
+        a = live(images, light, camera)
+        perm = torch.tensor([2, 0, 5, 1, 4, 3])
+        b = live(images[:, perm], light[:, perm], camera[:, perm])
+    torch.testing.assert_close(a.stacked(), b.stacked(), atol=PERMUTATION_ATOL, rtol=0)
+    assert (a.normal - silent.normal).abs().max() > 1e-3  # the branch reaches the normals ...
+    for name in ("diffuse", "roughness", "specular"):  # ... and only them
+        torch.testing.assert_close(getattr(a, name), getattr(silent, name), atol=0, rtol=0)
+    head = {id(p) for p in live.shading_head.parameters()}
+    assert head <= {id(p) for p in live.adapter_parameters()}  # refinement tunes it too
+
+
+def test_no_shading_branch_and_old_checkpoints(tmp_path, random_views):
+    import json
+
+    torch.manual_seed(0)
+    plain = SVBRDFEstimator(**{**TINY_TEST_CONFIG.to_dict(), "shading_channels": 0}).eval()
+    assert plain.shading is None and plain.shading_head is None
+    plain.save_pretrained(tmp_path / "old")
+    config = tmp_path / "old" / "config.json"
+    raw = json.loads(config.read_text())
+    del raw["shading_channels"]  # as saved before the branch existed
+    config.write_text(json.dumps(raw))
+    loaded = SVBRDFEstimator.from_pretrained(tmp_path / "old").eval()
+    assert loaded.arch.shading_channels == 0
+    images, light, camera = random_views(1, 3, seed=12)
+    with torch.no_grad():
+        torch.testing.assert_close(
+            loaded(images, light, camera).stacked(), plain(images, light, camera).stacked(), atol=0, rtol=0
+        )
+    with pytest.raises(ValueError, match="two levels"):
+        EstimatorConfig(channel_mults=(1,), shading_channels=4)
+    with pytest.raises(ValueError, match="shading_channels"):
+        EstimatorConfig(shading_channels=-1)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import pytest
@@ -137,6 +138,24 @@ def test_init_from_starts_at_the_saved_weights(tmp_path):
     assert a.keys() == b.keys()
     for k in a:
         torch.testing.assert_close(a[k], b[k], atol=0, rtol=0, msg=k)
+
+
+def test_init_from_grows_the_shading_branch(tmp_path, random_views):
+    """A model saved without the shading branch starts a run with one: every saved weight
+    is copied and the zero-initialised shading head leaves the output unchanged."""
+    plain = dataclasses.replace(TINY_TEST_CONFIG, shading_channels=0)
+    source = main(_tiny_train_config(tmp_path / "a", steps=1, model=plain))
+    grown = main(_tiny_train_config(tmp_path / "b", steps=1, lr=0.0, init_from=str(source)))
+    a = SVBRDFEstimator.from_pretrained(source).eval()
+    b = SVBRDFEstimator.from_pretrained(grown).eval()
+    assert b.arch == TINY_TEST_CONFIG and a.arch == plain
+    images, light, camera = random_views(1, 3, seed=2)
+    with torch.no_grad():
+        torch.testing.assert_close(b(images, light, camera).stacked(), a(images, light, camera).stacked())
+    # Only "no branch -> branch" grows; other differences are still refused.
+    wider = dataclasses.replace(TINY_TEST_CONFIG, shading_channels=8)
+    with pytest.raises(ValueError, match="architecture"):
+        main(_tiny_train_config(tmp_path / "c", steps=1, model=wider, init_from=str(grown)))
 
 
 def test_init_from_refuses_a_missing_folder_or_another_architecture(tmp_path):
