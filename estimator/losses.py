@@ -19,8 +19,9 @@ procedural normals are close to flat, so their L1 is the smallest of the four te
 its gradient the weakest, and the 8-view model had not learnt to read relief from the
 extra lightings.
 
-``normal_loss="mse"`` replaces the normal L1 by ``NORMAL_MSE_SCALE`` times its mean squared
-error. Why: procedural relief is sparse (most pixels near flat, a few steep grooves), and
+``normal_loss="mse"`` (the default since 2026-12-02; ``"l1"`` is what stages 1-3 of the
+shipped weights were trained with) replaces the normal L1 by ``NORMAL_MSE_SCALE`` times its
+mean squared error. Why: procedural relief is sparse (most pixels near flat, a few steep grooves), and
 the L1-optimal guess under uncertain evidence is the per-pixel median, i.e. flat; a network
 trained with L1 settles there, while the evaluation's normal MSE rewards the mean, which
 moves off flat as soon as the shading carries any evidence (measured: ``estimator/DESIGN.md``,
@@ -36,7 +37,9 @@ import torch
 import kernels
 from materials.types import Material
 
-__all__ = ["map_l1", "estimator_loss", "MAP_WEIGHT", "RENDER_WEIGHT", "NORMAL_WEIGHT", "NORMAL_MSE_SCALE", "NORMAL_LOSSES"]
+__all__ = [
+    "map_l1", "estimator_loss", "MAP_WEIGHT", "RENDER_WEIGHT", "NORMAL_WEIGHT", "NORMAL_MSE_SCALE", "NORMAL_LOSSES",
+]
 
 #: Default weight of the summed per-map L1 (module docstring).
 MAP_WEIGHT = 1.0
@@ -64,7 +67,7 @@ def estimator_loss(
     map_weight: float = MAP_WEIGHT,
     render_weight: float = RENDER_WEIGHT,
     normal_weight: float = NORMAL_WEIGHT,
-    normal_loss: str = "l1",
+    normal_loss: str = "mse",
     generator: torch.Generator | None = None,
     map_render_loss_fn: Callable[..., torch.Tensor] = kernels.map_rendering_loss,
 ) -> dict[str, torch.Tensor]:
@@ -74,8 +77,8 @@ def estimator_loss(
         pred, target: batched Materials ``[B, C, H, W]`` (linear maps, unit normals).
         map_weight, render_weight: weights of the two terms (module docstring).
         normal_weight: weight of the normal term inside the map term.
-        normal_loss: ``"l1"`` (the normal L1, like the other maps) or ``"mse"``
-            (``NORMAL_MSE_SCALE`` x the normal MSE; module docstring).
+        normal_loss: ``"mse"`` (``NORMAL_MSE_SCALE`` x the normal MSE; module docstring)
+            or ``"l1"`` (the normal L1, like the other maps).
         generator: drives the random lights of the rendering loss (a fixed seed gives
             fixed lights, e.g. for an overfitting test).
         map_render_loss_fn: ``kernels.map_rendering_loss`` or a function with its signature.

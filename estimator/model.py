@@ -331,8 +331,7 @@ class SVBRDFEstimator(ModelMixin, ConfigMixin):
         ``pyramid[-1]``) -> full-resolution features ``[B, C_0 (+ C_s), H, W]`` (the decoder's,
         then the shading branch's when there is one)."""
         x = pyramid[-1]
-        skip0 = pyramid[0]
-        c0 = self.arch.base_channels * self.arch.channel_mults[0]
+        skip0, c0 = pyramid[0], self._decoder_channels
         if self.shading is not None:
             pyramid = [skip0[:, :c0], *pyramid[1:]]
         if latent_offset is not None:
@@ -347,7 +346,7 @@ class SVBRDFEstimator(ModelMixin, ConfigMixin):
     def predict_maps(self, features: torch.Tensor) -> Material:
         """Adapter heads: ``decode``'s features ``[B, C_0 (+ C_s), H, W]`` -> Material (maps
         in [0, 1], unit normals with z > 0)."""
-        both, features = features, features[:, : self.arch.base_channels * self.arch.channel_mults[0]]
+        both, features = features, features[:, : self._decoder_channels]
         diffuse = torch.sigmoid(self.heads["diffuse"](features))
         raw = self.heads["normal"](features)
         if self.shading_head is not None:
@@ -372,6 +371,11 @@ class SVBRDFEstimator(ModelMixin, ConfigMixin):
         [0, 1]), normal (unit, z > 0), roughness (in [0, 1]).
         """
         return self.predict_maps(self.decode(self.encode(images, light, camera), latent_offset))
+
+    @property
+    def _decoder_channels(self) -> int:
+        """C_0: the decoder's full-resolution channels (the shading branch's follow them)."""
+        return self.arch.base_channels * self.arch.channel_mults[0]
 
     # ------------------------------------------------------------------ parameter groups
     def adapter_parameters(self) -> Iterator[nn.Parameter]:

@@ -59,13 +59,13 @@ class TrainConfig:
         min_views: the smallest N (1: every count; 8 with ``max_views`` 8: always all
             views, e.g. a phase that trains what only several views reveal).
         map_weight, render_weight, normal_weight: loss weights (``estimator.losses``).
-        normal_loss: ``"l1"`` or ``"mse"``, the normal map's term (``estimator.losses``).
+        normal_loss: ``"mse"`` or ``"l1"``, the normal map's term (``estimator.losses``).
         init_from: a saved estimator folder (``save_pretrained``) whose weights start the
             run, e.g. the shipped model for a fine-tuning run; its architecture must equal
             ``model``, or be ``model`` without the shading branch (the branch then starts
-            from its initialisation, ``_load_initial_weights``). A resumed run of the same fine-tuning continues from its
-            checkpoint; resuming a checkpoint of another run is refused. The optimizer
-            and schedule start fresh.
+            from its initialisation, ``_load_initial_weights``). A resumed run of the same
+            fine-tuning continues from its checkpoint; resuming a checkpoint of another run
+            is refused. The optimizer and schedule start fresh.
         out_dir: where the final model, loss curve and history are exported.
         ckpt_dir: training checkpoints (keep it outside the repository).
         ckpt_every, log_every: in steps.
@@ -90,7 +90,7 @@ class TrainConfig:
     map_weight: float = MAP_WEIGHT
     render_weight: float = RENDER_WEIGHT
     normal_weight: float = NORMAL_WEIGHT
-    normal_loss: str = "l1"
+    normal_loss: str = "mse"
     init_from: str | None = None
     out_dir: str = "runs/estimator"
     ckpt_dir: str = "/work/ckpt/estimator"
@@ -205,11 +205,13 @@ def _load_initial_weights(model: SVBRDFEstimator, cfg: TrainConfig) -> None:
         raise FileNotFoundError(f"init_from: {folder} is not a saved estimator (no config.json)")
     source = SVBRDFEstimator.from_pretrained(folder)
     saved = source.arch
-    grows = saved.shading_channels == 0 and dataclasses.replace(saved, shading_channels=cfg.model.shading_channels) == cfg.model
+    with_branch = dataclasses.replace(saved, shading_channels=cfg.model.shading_channels)
+    grows = saved.shading_channels == 0 and with_branch == cfg.model
     if saved != cfg.model and not grows:
         raise ValueError(f"init_from: {folder} has architecture {saved}, the run asks for {cfg.model}")
     missing, unexpected = model.load_state_dict(source.state_dict(), strict=False)
-    assert not unexpected and all(k.startswith(("shading.", "shading_head.")) for k in missing), (missing, unexpected)
+    if unexpected or not all(k.startswith(("shading.", "shading_head.")) for k in missing):
+        raise RuntimeError(f"init_from: {folder}: unexpected weights {unexpected}, missing {missing}")
 
 
 def main(cfg: TrainConfig) -> Path:
@@ -273,7 +275,8 @@ def main(cfg: TrainConfig) -> Path:
         pred = model(batch["images"][:, views], batch["light"][:, views], batch["camera"][:, views])
         parts = estimator_loss(
             pred, Material.from_stacked(batch["maps"]), map_weight=cfg.map_weight, render_weight=cfg.render_weight,
-            normal_weight=cfg.normal_weight, normal_loss=cfg.normal_loss, generator=_step_generator(cfg.seed, step, stream=2),
+            normal_weight=cfg.normal_weight, normal_loss=cfg.normal_loss,
+            generator=_step_generator(cfg.seed, step, stream=2),
         )
         optimizer.zero_grad(set_to_none=True)
         accelerator.backward(parts["loss"])

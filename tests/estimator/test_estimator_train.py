@@ -182,8 +182,8 @@ def test_normal_weight_scales_only_the_normal_term():
     g = torch.Generator().manual_seed(0)
     maps = lambda: Material.from_stacked(torch.rand(2, 10, 8, 8, generator=g))  # noqa: E731
     pred, target = maps(), maps()
-    one = estimator_loss(pred, target, render_weight=0.0)
-    three = estimator_loss(pred, target, render_weight=0.0, normal_weight=3.0)
+    one = estimator_loss(pred, target, render_weight=0.0, normal_loss="l1")
+    three = estimator_loss(pred, target, render_weight=0.0, normal_weight=3.0, normal_loss="l1")
     torch.testing.assert_close(three["map"] - one["map"], 2.0 * one["normal"])
     torch.testing.assert_close(three["normal"], one["normal"])
 
@@ -192,8 +192,8 @@ def test_normal_mse_replaces_only_the_normal_term():
     g = torch.Generator().manual_seed(1)
     maps = lambda: Material.from_stacked(torch.rand(2, 10, 8, 8, generator=g))  # noqa: E731
     pred, target = maps(), maps()
-    l1 = estimator_loss(pred, target, render_weight=0.0, normal_weight=2.0)
-    mse = estimator_loss(pred, target, render_weight=0.0, normal_weight=2.0, normal_loss="mse")
+    l1 = estimator_loss(pred, target, render_weight=0.0, normal_weight=2.0, normal_loss="l1")
+    mse = estimator_loss(pred, target, render_weight=0.0, normal_weight=2.0)  # the default
     expected_mse = ((pred.normal - target.normal) ** 2).mean()
     torch.testing.assert_close(mse["normal_mse"], expected_mse)
     torch.testing.assert_close(mse["map"] - l1["map"], 2.0 * (NORMAL_MSE_SCALE * expected_mse - l1["normal"]))
@@ -203,7 +203,7 @@ def test_normal_mse_replaces_only_the_normal_term():
         estimator_loss(pred, target, normal_loss="l2")
     with pytest.raises(ValueError, match="normal_loss"):
         TrainConfig(normal_loss="huber")
-    assert parse_args(["--normal-loss", "mse"]).normal_loss == "mse"
+    assert parse_args(["--normal-loss", "l1"]).normal_loss == "l1" and parse_args([]).normal_loss == "mse"
 
 
 def test_normal_mse_does_not_settle_on_the_flat_median():
@@ -211,7 +211,8 @@ def test_normal_mse_does_not_settle_on_the_flat_median():
     and no per-pixel evidence, the L1-optimal guess is the median (flat) and the
     MSE-optimal one the mean (0.06), which is what the evaluation's normal MSE rewards."""
     def unit(slope_x: torch.Tensor) -> torch.Tensor:  # [P] x-slopes -> [1, 3, 1, P] unit normals
-        return F.normalize(torch.stack([slope_x, torch.zeros_like(slope_x), torch.ones_like(slope_x)])[None, :, None], dim=1)
+        normal = torch.stack([slope_x, torch.zeros_like(slope_x), torch.ones_like(slope_x)])
+        return F.normalize(normal[None, :, None], dim=1)
 
     tilt = torch.zeros(1000)
     tilt[:200] = 0.3
