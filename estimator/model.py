@@ -288,7 +288,7 @@ class SVBRDFEstimator(ModelMixin, ConfigMixin):
         """diffusers' ``from_pretrained``; a local checkpoint saved before the shading
         branch existed (no ``shading_channels`` in its config.json) loads without one,
         rather than with today's default and uninitialised branch weights."""
-        config = Path(pretrained_model_name_or_path) / kwargs.get("subfolder", "") / cls.config_name
+        config = Path(pretrained_model_name_or_path) / (kwargs.get("subfolder") or "") / cls.config_name
         if config.is_file() and "shading_channels" not in json.loads(config.read_text()):
             kwargs.setdefault("shading_channels", 0)
         return super().from_pretrained(pretrained_model_name_or_path, **kwargs)

@@ -8,8 +8,9 @@ its pure-torch twin ``kernels.reference.rendering_loss`` (same signature).
 
 - ``refine``: the estimator-based refinement of Luo et al. 2024. Stage 1 optimises an
   additive offset on the bottleneck latent (the decoder then maps it to consistent maps,
-  a strong prior); stage 2 fine-tunes only the per-map adapter heads on the decoder's
-  (fixed) features. It works on a deep copy of the model, never the caller's.
+  a strong prior); stage 2 fine-tunes only the per-map adapter heads (and the shading
+  head of the normals, ``SVBRDFEstimator.adapter_parameters``) on the decoder's (fixed)
+  features. It works on a deep copy of the model, never the caller's.
 - ``refine_maps``: direct per-pixel optimisation of the maps in an unconstrained space
   (logits for [0, 1] maps, slopes for normals), the classic inverse-rendering baseline.
 

@@ -239,7 +239,13 @@ def main(cfg: TrainConfig) -> Path:
                 f"{folder}: a checkpoint of another run (init_from={saved_cfg.get('init_from')!r}) is in ckpt_dir; "
                 f"use a fresh --ckpt-dir for --init-from {cfg.init_from}, or --no-resume"
             )
-        saved = EstimatorConfig(**saved_cfg["model"])
+        # Runs started before the shading branch and normal_loss existed had neither.
+        saved = EstimatorConfig(**{"shading_channels": 0, **saved_cfg["model"]})
+        saved_loss = saved_cfg.get("normal_loss", "l1")
+        if saved_loss != cfg.normal_loss:
+            accelerator.print(
+                f"warning: {folder} was trained with --normal-loss {saved_loss}; continuing with {cfg.normal_loss}"
+            )
         if saved != cfg.model:
             raise ValueError(f"{folder}: checkpoint architecture {saved} differs from the requested {cfg.model}")
         state = load_checkpoint(folder, model=model, optimizer=optimizer, scheduler=scheduler)

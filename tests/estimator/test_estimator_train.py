@@ -113,6 +113,21 @@ def test_train_resume_matches_uninterrupted_run(tmp_path):
     assert len(list((tmp_path / "b" / "ckpt").glob("checkpoint-*"))) <= 2
 
 
+def test_resume_a_run_saved_before_the_shading_branch(tmp_path):
+    """A checkpoint whose config has no shading_channels / normal_loss (written before they
+    existed) resumes as shading_channels=0; asking for a branch is refused, not crashed."""
+    plain = dataclasses.replace(TINY_TEST_CONFIG, shading_channels=0)
+    main(_tiny_train_config(tmp_path, steps=2, model=plain, normal_loss="l1"))
+    state_file = latest_checkpoint(tmp_path / "ckpt") / "trainer_state.json"
+    state = json.loads(state_file.read_text())
+    del state["config"]["model"]["shading_channels"], state["config"]["normal_loss"]
+    state_file.write_text(json.dumps(state))
+    with pytest.raises(ValueError, match="architecture"):
+        main(_tiny_train_config(tmp_path, steps=3))  # today's default has the branch
+    main(_tiny_train_config(tmp_path, steps=3, model=plain, normal_loss="l1"))
+    assert latest_checkpoint(tmp_path / "ckpt").name.endswith("0000003")
+
+
 def test_resume_refuses_a_different_architecture(tmp_path):
     main(_tiny_train_config(tmp_path, steps=2))
     other = EstimatorConfig(base_channels=4, channel_mults=(1, 2, 4), adapter_width=4, norm_groups=4)
