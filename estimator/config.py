@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-__all__ = ["EstimatorConfig", "TINY_TEST_CONFIG"]
+__all__ = ["EstimatorConfig", "TINY_TEST_CONFIG", "FIELDS_ADDED_SINCE"]
 
 
 @dataclass(frozen=True)
@@ -61,6 +61,12 @@ class EstimatorConfig:
             raise ValueError(f"plane_size must be positive, got {self.plane_size}")
         object.__setattr__(self, "channel_mults", tuple(int(m) for m in self.channel_mults))
 
+    @classmethod
+    def from_saved(cls, saved: dict) -> "EstimatorConfig":
+        """From a saved config (a checkpoint's config.json or trainer state): a field the
+        save predates takes the value that meant its absence (``FIELDS_ADDED_SINCE``)."""
+        return cls(**{**FIELDS_ADDED_SINCE, **saved})
+
     @property
     def downsample_factor(self) -> int:
         """H and W must be multiples of this (2 ** (levels - 1))."""
@@ -69,6 +75,10 @@ class EstimatorConfig:
     def to_dict(self) -> dict:
         return asdict(self)
 
+
+#: Fields added after checkpoints were shipped, with the value a checkpoint saved before
+#: them means (the architecture it has): ``shading_channels`` 0, no shading branch.
+FIELDS_ADDED_SINCE = {"shading_channels": 0}
 
 #: The tiny architecture used by the fast tests (32 x 32 images, a few thousand params).
 TINY_TEST_CONFIG = EstimatorConfig(

@@ -45,7 +45,7 @@ from diffusers.configuration_utils import ConfigMixin, register_to_config
 from diffusers.models.modeling_utils import ModelMixin
 
 import kernels
-from estimator.config import EstimatorConfig
+from estimator.config import FIELDS_ADDED_SINCE, EstimatorConfig
 from materials.types import Material
 
 __all__ = ["SVBRDFEstimator", "check_views", "INPUT_SHIFT", "INPUT_SCALE", "NORMAL_MIN_Z"]
@@ -285,12 +285,15 @@ class SVBRDFEstimator(ModelMixin, ConfigMixin):
 
     @classmethod
     def from_pretrained(cls, pretrained_model_name_or_path, **kwargs):
-        """diffusers' ``from_pretrained``; a local checkpoint saved before the shading
-        branch existed (no ``shading_channels`` in its config.json) loads without one,
-        rather than with today's default and uninitialised branch weights."""
+        """diffusers' ``from_pretrained``; a local checkpoint saved before a field existed
+        (``FIELDS_ADDED_SINCE``, e.g. no ``shading_channels``: no shading branch) loads as
+        it was saved, rather than with today's default and uninitialised weights."""
         config = Path(pretrained_model_name_or_path) / (kwargs.get("subfolder") or "") / cls.config_name
-        if config.is_file() and "shading_channels" not in json.loads(config.read_text()):
-            kwargs.setdefault("shading_channels", 0)
+        if config.is_file():
+            saved = json.loads(config.read_text())
+            for name, absent in FIELDS_ADDED_SINCE.items():
+                if name not in saved:
+                    kwargs.setdefault(name, absent)
         return super().from_pretrained(pretrained_model_name_or_path, **kwargs)
 
     # ------------------------------------------------------------------ stages

@@ -239,9 +239,8 @@ def main(cfg: TrainConfig) -> Path:
                 f"{folder}: a checkpoint of another run (init_from={saved_cfg.get('init_from')!r}) is in ckpt_dir; "
                 f"use a fresh --ckpt-dir for --init-from {cfg.init_from}, or --no-resume"
             )
-        # Runs started before the shading branch and normal_loss existed had neither.
-        saved = EstimatorConfig(**{"shading_channels": 0, **saved_cfg["model"]})
-        saved_loss = saved_cfg.get("normal_loss", "l1")
+        saved = EstimatorConfig.from_saved(saved_cfg["model"])
+        saved_loss = saved_cfg.get("normal_loss", "l1")  # runs from before the option used L1
         if saved_loss != cfg.normal_loss:
             accelerator.print(
                 f"warning: {folder} was trained with --normal-loss {saved_loss}; continuing with {cfg.normal_loss}"

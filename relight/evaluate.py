@@ -44,13 +44,13 @@ __all__ = [
     "EVAL_CROP_SEED", "step_count",
 ]
 
+#: Seed of the evaluation crops (``GroupConfig.seed``); the materials come from EVAL_SEEDS.
+EVAL_CROP_SEED = 0
+
+
 def step_count(n: int, what: str = "step") -> str:
     """``"1 step"``, ``"10 steps"``: how row labels and reports name a sampling step count."""
     return f"{n} {what}{'s' if n != 1 else ''}"
-
-
-#: Seed of the evaluation crops (``GroupConfig.seed``); the materials come from EVAL_SEEDS.
-EVAL_CROP_SEED = 0
 
 
 @dataclass(frozen=True)
