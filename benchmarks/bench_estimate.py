@@ -34,9 +34,9 @@ def main() -> None:
     import kernels
     import kernels.reference
     from estimator.refine import refine
+    from matcap.estimate import load_estimator
     from materials.lights import eval_lights
     from materials.procedural import generate
-    from matcap.estimate import load_estimator
 
     model = load_estimator()
     material = generate(10_000_003, size=args.size)
@@ -63,9 +63,16 @@ def main() -> None:
         rows[f"refine_{name}_steps"] = len(result.history)
     total = forward_s + rows["refine_warp_s"]
     report = {
-        "size": args.size, "views": args.views, "steps": args.steps, "threads": args.threads,
-        "cpu": platform.processor() or platform.machine(), "load_avg": os.getloadavg(),
-        **rows, "total_warp_s": total, "target_s": 60.0, "meets_target": total < 60.0,
+        "size": args.size,
+        "views": args.views,
+        "steps": args.steps,
+        "threads": args.threads,
+        "cpu": platform.processor() or platform.machine(),
+        "load_avg": os.getloadavg(),
+        **rows,
+        "total_warp_s": total,
+        "target_s": 60.0,
+        "meets_target": total < 60.0,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=2))

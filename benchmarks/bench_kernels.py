@@ -152,8 +152,9 @@ def _setup(case: Case, impl: str, device: str, seed: int = 0):
 
         cot = torch.randn((case.b, case.c, case.h, case.w), generator=g).to(device) if need_grad else None
     else:
-        normal = torch.cat([rand(case.b, 2, case.h, case.w, lo=-0.6, hi=0.6),
-                            torch.ones(case.b, 1, case.h, case.w, device=device)], 1)
+        normal = torch.cat(
+            [rand(case.b, 2, case.h, case.w, lo=-0.6, hi=0.6), torch.ones(case.b, 1, case.h, case.w, device=device)], 1
+        )
         maps = [
             rand(case.b, 3, case.h, case.w),
             normal / normal.norm(dim=1, keepdim=True),
@@ -293,8 +294,11 @@ def compile_worker(modules: list[str]) -> dict:
     t = time.perf_counter()
     wp.launch(probe, dim=4, inputs=[probe_arg], device="cpu")
     steady = time.perf_counter() - t
-    result["modules"]["(warp toolchain, trivial kernel)"] = {"first_s": first, "steady_s": steady,
-                                                               "load_s": first - steady}
+    result["modules"]["(warp toolchain, trivial kernel)"] = {
+        "first_s": first,
+        "steady_s": steady,
+        "load_s": first - steady,
+    }
     # torch.autograd.grad's first call with grad_outputs imports torch.fx's symbolic
     # shapes (sympy, ~0.25-0.5 s here): pay it now, so that the grad module's first call
     # times the module, not torch.
@@ -306,17 +310,26 @@ def compile_worker(modules: list[str]) -> dict:
         if op == "render":
             n = torch.zeros(1, 3, 4, 4, dtype=dtype)
             n[:, 2] = 1
-            args = (torch.rand(1, 3, 4, 4, dtype=dtype), n, torch.full((1, 1, 4, 4), 0.5, dtype=dtype),
-                    torch.rand(1, 3, 4, 4, dtype=dtype), torch.tensor([[1.0, 0.0, 4.0]], dtype=dtype),
-                    torch.tensor([0.0, 0.0, 4.0], dtype=dtype))
+            args = (
+                torch.rand(1, 3, 4, 4, dtype=dtype),
+                n,
+                torch.full((1, 1, 4, 4), 0.5, dtype=dtype),
+                torch.rand(1, 3, 4, 4, dtype=dtype),
+                torch.tensor([[1.0, 0.0, 4.0]], dtype=dtype),
+                torch.tensor([0.0, 0.0, 4.0], dtype=dtype),
+            )
 
             def call(args=args):
                 kernels.render(*args)
         elif op == "grad":  # the hand-written map gradients (render backward, maps only)
             n = torch.zeros(1, 3, 4, 4, dtype=dtype)
             n[:, 2] = 1
-            maps = [torch.rand(1, 3, 4, 4, dtype=dtype), n, torch.full((1, 1, 4, 4), 0.5, dtype=dtype),
-                    torch.rand(1, 3, 4, 4, dtype=dtype)]
+            maps = [
+                torch.rand(1, 3, 4, 4, dtype=dtype),
+                n,
+                torch.full((1, 1, 4, 4), 0.5, dtype=dtype),
+                torch.rand(1, 3, 4, 4, dtype=dtype),
+            ]
             maps = [m.requires_grad_() for m in maps]
             light, camera = torch.tensor([[1.0, 0.0, 4.0]], dtype=dtype), torch.tensor([0.0, 0.0, 4.0], dtype=dtype)
             out = kernels.render(*maps, light, camera)  # forward module compiled above
@@ -337,8 +350,11 @@ def compile_worker(modules: list[str]) -> dict:
             t = time.perf_counter()
             call()
             steady.append(time.perf_counter() - t)
-        result["modules"][module] = {"first_s": first, "steady_s": statistics.median(steady),
-                                     "load_s": first - statistics.median(steady)}
+        result["modules"][module] = {
+            "first_s": first,
+            "steady_s": statistics.median(steady),
+            "load_s": first - statistics.median(steady),
+        }
     return result
 
 
@@ -348,8 +364,9 @@ def _spawn(args: list[str], env_extra: dict[str, str], threads: int) -> dict:
     env.update(env_extra)
     env[THREADS_ENV] = str(threads)
     env["OMP_NUM_THREADS"] = str(threads)
-    proc = subprocess.run([sys.executable, str(Path(__file__).resolve()), *args], env=env,
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, str(Path(__file__).resolve()), *args], env=env, capture_output=True, text=True
+    )
     if proc.returncode != 0:
         raise RuntimeError(f"worker {args} failed:\n{proc.stderr[-4000:]}")
     return json.loads(proc.stdout.strip().splitlines()[-1])
@@ -401,8 +418,9 @@ def markdown(report: dict) -> str:
         ]
         for module, cold in comp["cold"]["modules"].items():
             warm = comp["warm"]["modules"][module]
-            lines.append(f"| {module} | {cold['load_s']:.2f} | {warm['load_s'] * 1e3:.1f} | "
-                         f"{warm['steady_s'] * 1e3:.2f} |")
+            lines.append(
+                f"| {module} | {cold['load_s']:.2f} | {warm['load_s'] * 1e3:.1f} | {warm['steady_s'] * 1e3:.2f} |"
+            )
     return "\n".join(lines)
 
 
@@ -440,10 +458,18 @@ def main(argv: list[str] | None = None) -> dict:
     warmup = args.warmup if args.warmup is not None else (1 if args.quick else 2)
     report = {
         "meta": {
-            "threads": args.threads, "device": args.device, "quick": args.quick, "repeats": repeats,
-            "warmup": warmup, "torch": torch.__version__, "warp": warp.__version__,
-            "python": platform.python_version(), "cpu": _cpu_name(), "date": time.strftime("%Y-%m-%d %H:%M:%S"),
-            "cores": len(os.sched_getaffinity(0)), "loadavg_before": os.getloadavg(),
+            "threads": args.threads,
+            "device": args.device,
+            "quick": args.quick,
+            "repeats": repeats,
+            "warmup": warmup,
+            "torch": torch.__version__,
+            "warp": warp.__version__,
+            "python": platform.python_version(),
+            "cpu": _cpu_name(),
+            "date": time.strftime("%Y-%m-%d %H:%M:%S"),
+            "cores": len(os.sched_getaffinity(0)),
+            "loadavg_before": os.getloadavg(),
         },
         "cases": [],
     }
@@ -456,11 +482,19 @@ def main(argv: list[str] | None = None) -> dict:
             raw = timing[impl]
             total = _stats(raw["total_s"])
             row[impl] = {
-                "fwd": _stats(raw["fwd_s"]), "bwd": _stats(raw["bwd_s"]), "total": total, "cpu": _stats(raw["cpu_s"]),
-                "throughput": case.work / total["median"] / 1e6, **memory, "raw": raw,
+                "fwd": _stats(raw["fwd_s"]),
+                "bwd": _stats(raw["bwd_s"]),
+                "total": total,
+                "cpu": _stats(raw["cpu_s"]),
+                "throughput": case.work / total["median"] / 1e6,
+                **memory,
+                "raw": raw,
             }
-            print(f"{case.name:28s} {impl:5s} {total['median'] * 1e3:9.1f} ms  "
-                  f"{row[impl]['throughput']:7.1f} {case.unit}  +{memory['peak_extra_mb']:.0f} MB", flush=True)
+            print(
+                f"{case.name:28s} {impl:5s} {total['median'] * 1e3:9.1f} ms  "
+                f"{row[impl]['throughput']:7.1f} {case.unit}  +{memory['peak_extra_mb']:.0f} MB",
+                flush=True,
+            )
         row["speedup"] = row["torch"]["total"]["median"] / row["warp"]["total"]["median"]
         report["cases"].append(row)
     report["meta"]["loadavg_after"] = os.getloadavg()

@@ -26,4 +26,3 @@ __all__ = [
     "write_report",
     "HELDOUT_LIGHTS",
 ]
-

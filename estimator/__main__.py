@@ -14,7 +14,8 @@ def main(argv: list[str] | None = None) -> None:
     if not argv or argv[0] not in ("train", "evaluate"):
         raise SystemExit("usage: python -m estimator {train,evaluate} [--help | flags]")
     if argv[0] == "train":
-        from estimator.train import main as train, parse_args
+        from estimator.train import main as train
+        from estimator.train import parse_args
 
         train(parse_args(argv[1:]))
     else:

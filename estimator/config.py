@@ -62,7 +62,7 @@ class EstimatorConfig:
         object.__setattr__(self, "channel_mults", tuple(int(m) for m in self.channel_mults))
 
     @classmethod
-    def from_saved(cls, saved: dict) -> "EstimatorConfig":
+    def from_saved(cls, saved: dict) -> EstimatorConfig:
         """From a saved config (a checkpoint's config.json or trainer state): a field the
         save predates takes the value that meant its absence (``FIELDS_ADDED_SINCE``)."""
         return cls(**{**FIELDS_ADDED_SINCE, **saved})

@@ -29,9 +29,9 @@ import argparse
 import json
 import math
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
 
 import kornia
 import torch
@@ -184,7 +184,7 @@ def evaluate(
     light8, camera8 = (t.to(device) for t in eval_lights(include_input=True))
     configs = [(n, r) for n in (1, 8) for r in ((False, True) if refine_steps > 0 else (False,))]
     per = {c: {k: [] for k in (*MAP_NAMES, "psnr", "ssim", "hl_diffuse")} for c in configs}
-    seconds = {c: 0.0 for c in configs}
+    seconds = dict.fromkeys(configs, 0.0)
     scores, has_mask = [], []
 
     bar = tqdm(total=len(seeds), desc="evaluate", disable=not progress)
@@ -202,8 +202,15 @@ def evaluate(
             tick = time.perf_counter()
             if refined:
                 preds = [
-                    refine(model, inp[i : i + 1], li[i : i + 1], ca[i : i + 1], steps=refine_steps,
-                           render_loss_fn=render_loss_fn, progress=False).material
+                    refine(
+                        model,
+                        inp[i : i + 1],
+                        li[i : i + 1],
+                        ca[i : i + 1],
+                        steps=refine_steps,
+                        render_loss_fn=render_loss_fn,
+                        progress=False,
+                    ).material
                     for i in range(b)
                 ]
                 pred = Material(**{k: torch.cat([getattr(p, k) for p in preds]) for k in MAP_NAMES})
@@ -230,16 +237,26 @@ def evaluate(
     rows, highlight = [], []
     for c in configs:
         cat = {name: torch.cat(v) for name, v in per[c].items()}
-        rows.append(EvalRow(
-            inputs=c[0], refined=c[1], count=len(seeds),
-            **{f"mse_{m}": float(cat[m].mean()) for m in MAP_NAMES},
-            psnr=float(cat["psnr"].mean()), ssim=float(cat["ssim"].mean()), seconds=seconds[c],
-        ).__dict__)
-        highlight.append({
-            "inputs": c[0], "refined": c[1], "count": int(top.numel()),
-            "mse_diffuse_highlight": float(cat["hl_diffuse"][top].mean()) if top.numel() else float("nan"),
-            "mse_diffuse_all": float(cat["diffuse"][top].mean()) if top.numel() else float("nan"),
-        })
+        rows.append(
+            EvalRow(
+                inputs=c[0],
+                refined=c[1],
+                count=len(seeds),
+                **{f"mse_{m}": float(cat[m].mean()) for m in MAP_NAMES},
+                psnr=float(cat["psnr"].mean()),
+                ssim=float(cat["ssim"].mean()),
+                seconds=seconds[c],
+            ).__dict__
+        )
+        highlight.append(
+            {
+                "inputs": c[0],
+                "refined": c[1],
+                "count": int(top.numel()),
+                "mse_diffuse_highlight": float(cat["hl_diffuse"][top].mean()) if top.numel() else float("nan"),
+                "mse_diffuse_all": float(cat["diffuse"][top].mean()) if top.numel() else float("nan"),
+            }
+        )
     report = {
         "rows": rows,
         "highlight": highlight,
@@ -311,9 +328,12 @@ def write_report(report: dict, out_dir: str | Path, name: str = "estimator_eval"
 def cli(argv: list[str] | None = None) -> dict:
     """``python -m estimator evaluate ...``: load a model folder, evaluate, write the report."""
     parser = argparse.ArgumentParser(prog="python -m estimator evaluate", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--model", required=True,
-                        help="folder written by save_pretrained (config.json + safetensors), or a training "
-                             "checkpoint folder holding one in model/")
+    parser.add_argument(
+        "--model",
+        required=True,
+        help="folder written by save_pretrained (config.json + safetensors), or a training "
+        "checkpoint folder holding one in model/",
+    )
     parser.add_argument("--num", type=int, default=16, help="how many EVAL_SEEDS (a prefix)")
     parser.add_argument("--size", type=int, default=64)
     parser.add_argument("--refine-steps", type=int, default=0)
@@ -323,8 +343,9 @@ def cli(argv: list[str] | None = None) -> dict:
     if args.num_threads is not None:
         torch.set_num_threads(args.num_threads)
     folder = Path(args.model)
-    model = SVBRDFEstimator.from_pretrained(folder / "model" if (folder / "model" / "config.json").is_file() else folder)
+    model = SVBRDFEstimator.from_pretrained(
+        folder / "model" if (folder / "model" / "config.json").is_file() else folder
+    )
     report = evaluate(model, EVAL_SEEDS[: args.num], args.size, refine_steps=args.refine_steps, out_dir=args.out)
     print((Path(args.out) / "estimator_eval.md").read_text())
     return report
-

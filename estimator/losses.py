@@ -30,7 +30,7 @@ moves off flat as soon as the shading carries any evidence (measured: ``estimato
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import torch
 
@@ -38,7 +38,13 @@ import kernels
 from materials.types import Material
 
 __all__ = [
-    "map_l1", "estimator_loss", "MAP_WEIGHT", "RENDER_WEIGHT", "NORMAL_WEIGHT", "NORMAL_MSE_SCALE", "NORMAL_LOSSES",
+    "map_l1",
+    "estimator_loss",
+    "MAP_WEIGHT",
+    "RENDER_WEIGHT",
+    "NORMAL_WEIGHT",
+    "NORMAL_MSE_SCALE",
+    "NORMAL_LOSSES",
 ]
 
 #: Default weight of the summed per-map L1 (module docstring).

@@ -35,8 +35,8 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Iterator, Sequence
 
 import torch
 import torch.nn as nn
@@ -313,7 +313,9 @@ class SVBRDFEstimator(ModelMixin, ConfigMixin):
         b, v, _, h, w = images.shape
         dtype = self.dtype
         lvh = kernels.lvh_maps(
-            light.detach().to(dtype).contiguous(), camera.detach().to(dtype).contiguous(), (h, w),
+            light.detach().to(dtype).contiguous(),
+            camera.detach().to(dtype).contiguous(),
+            (h, w),
             plane_size=self.arch.plane_size,
         )
         log_image = torch.log(images.to(dtype).clamp_min(0) + kernels.LOG_EPS)

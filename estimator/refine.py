@@ -22,7 +22,8 @@ the parameters with the lowest loss seen are the ones returned.
 from __future__ import annotations
 
 import copy
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -32,7 +33,16 @@ import kernels
 from estimator.model import SVBRDFEstimator, check_views
 from materials.types import Material
 
-__all__ = ["refine", "refine_maps", "RefineResult", "converged", "DEFAULT_TOL", "DEFAULT_WINDOW", "LATENT_LR", "HEAD_LR"]
+__all__ = [
+    "refine",
+    "refine_maps",
+    "RefineResult",
+    "converged",
+    "DEFAULT_TOL",
+    "DEFAULT_WINDOW",
+    "LATENT_LR",
+    "HEAD_LR",
+]
 
 #: Early stop: relative improvement of the best loss over the last ``DEFAULT_WINDOW``
 #: steps below 1e-4 (the log-L1 of a good fit is ~0.05-0.2; 1e-4 of it is far below the
@@ -166,16 +176,32 @@ def refine(
     with tqdm(total=steps, desc="refine", disable=not progress) as bar:
         offset = torch.zeros_like(pyramid[-1], requires_grad=True)
         _, taken = _optimise(
-            [offset], lambda: loss_of(work.predict_maps(work.decode(pyramid, offset))),
-            latent_steps, latent_lr, tol, window, bar, history, "latent",
+            [offset],
+            lambda: loss_of(work.predict_maps(work.decode(pyramid, offset))),
+            latent_steps,
+            latent_lr,
+            tol,
+            window,
+            bar,
+            history,
+            "latent",
         )
         with torch.no_grad():
             features = work.decode(pyramid, offset.detach())
         heads = list(work.adapter_parameters())
         for p in heads:
             p.requires_grad_(True)
-        _optimise(heads, lambda: loss_of(work.predict_maps(features)), steps - latent_steps, head_lr, tol, window,
-                  bar, history, "heads")
+        _optimise(
+            heads,
+            lambda: loss_of(work.predict_maps(features)),
+            steps - latent_steps,
+            head_lr,
+            tol,
+            window,
+            bar,
+            history,
+            "heads",
+        )
     with torch.no_grad():
         material = work.predict_maps(features)
     return RefineResult(material, history, taken)

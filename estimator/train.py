@@ -264,14 +264,25 @@ def main(cfg: TrainConfig) -> Path:
         accelerator.wait_for_everyone()
         if accelerator.is_main_process:
             save_checkpoint(
-                ckpt_dir, model=accelerator.unwrap_model(model), optimizer=optimizer, scheduler=scheduler,
-                step=step, history=history, config=cfg.to_dict(), keep=cfg.keep_checkpoints,
+                ckpt_dir,
+                model=accelerator.unwrap_model(model),
+                optimizer=optimizer,
+                scheduler=scheduler,
+                step=step,
+                history=history,
+                config=cfg.to_dict(),
+                keep=cfg.keep_checkpoints,
             )
             plot_history(history, ckpt_dir / "loss.png")
 
     model.train()
-    bar = tqdm(total=cfg.steps, initial=start, disable=not cfg.progress or not accelerator.is_main_process,
-               desc="estimator", mininterval=5.0)
+    bar = tqdm(
+        total=cfg.steps,
+        initial=start,
+        disable=not cfg.progress or not accelerator.is_main_process,
+        desc="estimator",
+        mininterval=5.0,
+    )
     step, tick = start, time.perf_counter()
     for batch in loader:
         views = select_views(
@@ -279,8 +290,12 @@ def main(cfg: TrainConfig) -> Path:
         )
         pred = model(batch["images"][:, views], batch["light"][:, views], batch["camera"][:, views])
         parts = estimator_loss(
-            pred, Material.from_stacked(batch["maps"]), map_weight=cfg.map_weight, render_weight=cfg.render_weight,
-            normal_weight=cfg.normal_weight, normal_loss=cfg.normal_loss,
+            pred,
+            Material.from_stacked(batch["maps"]),
+            map_weight=cfg.map_weight,
+            render_weight=cfg.render_weight,
+            normal_weight=cfg.normal_weight,
+            normal_loss=cfg.normal_loss,
             generator=_step_generator(cfg.seed, step, stream=2),
         )
         optimizer.zero_grad(set_to_none=True)
@@ -334,12 +349,19 @@ def _add_fields(parser: argparse.ArgumentParser, cls, prefix: str = "") -> None:
         if base is bool:
             parser.add_argument(flag, dest=name, action=argparse.BooleanOptionalAction, default=default)
         elif typing.get_origin(tp) is tuple:
-            parser.add_argument(flag, dest=name, type=lambda s: tuple(int(x) for x in s.split(",")),
-                                default=default, help="comma-separated, e.g. 1,2,4,8")
+            parser.add_argument(
+                flag,
+                dest=name,
+                type=lambda s: tuple(int(x) for x in s.split(",")),
+                default=default,
+                help="comma-separated, e.g. 1,2,4,8",
+            )
         else:
             optional = type(None) in args
             parser.add_argument(
-                flag, dest=name, default=default,
+                flag,
+                dest=name,
+                default=default,
                 type=(lambda s, b=base: None if s.lower() == "none" else b(s)) if optional else base,
             )
 

@@ -88,8 +88,11 @@ def _launch_chunked(kernel, maps, light, camera, scene, tail, outputs, adjoint=N
         offsets = [start, 0] if axis == "batch" else [0, start]
         dim = (count, h, w) if axis == "batch" else (b, count, w)
         kwargs = dict(
-            dim=dim, inputs=[*head, *consts, *offsets, *tail], outputs=outs,
-            device=warp_device(device), stream=_stream(device),
+            dim=dim,
+            inputs=[*head, *consts, *offsets, *tail],
+            outputs=outs,
+            device=warp_device(device),
+            stream=_stream(device),
         )
         if adjoint is None:
             wp.launch(kernel, **kwargs)
@@ -177,8 +180,15 @@ def _shading_backward(name, maps, light, camera, scene, extra, extra_adj, output
         unique = len(chunks)
     # Warp consumes (zeroes) the output adjoint it is given: hand it a private copy.
     _launch_shading(
-        name, maps, light, camera, scene, extra, output,
-        grads=(grads, light_adj, camera_adj), extra_adj=extra_adj,
+        name,
+        maps,
+        light,
+        camera,
+        scene,
+        extra,
+        output,
+        grads=(grads, light_adj, camera_adj),
+        extra_adj=extra_adj,
         adj_output=grad_output.contiguous().clone(),
     )
     return grads, sum(light_adj[:unique]), sum(camera_adj[:unique])
@@ -205,9 +215,7 @@ class RenderFunction(torch.autograd.Function):
         *maps, light, camera, out, fresnel = ctx.saved_tensors
         h, w = out.shape[-2:]
         if _maps_only(ctx):
-            grads = _maps_backward(
-                "render", maps, light, camera, ctx.scene, [], fresnel, grad_out.reshape(-1, 3, h, w)
-            )
+            grads = _maps_backward("render", maps, light, camera, ctx.scene, [], fresnel, grad_out.reshape(-1, 3, h, w))
             return (*grads, None, None, None, None)
         grads, g_light, g_camera = _shading_backward(
             "render", maps, light, camera, ctx.scene, [], [], out.view(-1, 3, h, w), grad_out.reshape(-1, 3, h, w)
@@ -241,14 +249,19 @@ class RenderLogL1Function(torch.autograd.Function):
         *maps, light, camera, target, partial, fresnel = ctx.saved_tensors
         F = warp_scalar(partial.dtype)
         if _maps_only(ctx):
-            grads = _maps_backward(
-                "loss", maps, light, camera, ctx.scene, [target, F(ctx.eps)], fresnel, grad_partial
-            )
+            grads = _maps_backward("loss", maps, light, camera, ctx.scene, [target, F(ctx.eps)], fresnel, grad_partial)
             return (*grads, None, None, None, None, None, None)
         # The target takes no gradient; Warp still wants a buffer for its adjoint.
         grads, g_light, g_camera = _shading_backward(
-            "loss", maps, light, camera, ctx.scene, [target, F(ctx.eps)],
-            [torch.zeros_like(target), F(0.0)], partial, grad_partial,
+            "loss",
+            maps,
+            light,
+            camera,
+            ctx.scene,
+            [target, F(ctx.eps)],
+            [torch.zeros_like(target), F(0.0)],
+            partial,
+            grad_partial,
         )
         return (*grads, g_light, g_camera, None, None, None, None)
 
@@ -271,7 +284,11 @@ class RowLossFunction(torch.autograd.Function):
         x, y, partial = ctx.saved_tensors
         gx = torch.zeros_like(x)
         _launch_rows(
-            x, y, ctx.kind, ctx.eps, partial,
+            x,
+            y,
+            ctx.kind,
+            ctx.eps,
+            partial,
             adj=(gx, torch.zeros_like(y), grad_partial.contiguous().clone()),
         )
         return gx, None, None, None
@@ -286,16 +303,22 @@ def _launch_rows(x, y, kind, eps, partial, adj=None):
 
     def launch(_index: int, start: int, count: int) -> None:
         kwargs = dict(
-            dim=count, inputs=[wx, wy, *scalars, start], outputs=[wp_partial],
-            device=warp_device(x.device), stream=_stream(x.device),
+            dim=count,
+            inputs=[wx, wy, *scalars, start],
+            outputs=[wp_partial],
+            device=warp_device(x.device),
+            stream=_stream(x.device),
         )
         if adj is None:
             wp.launch(kernel, **kwargs)
         else:
             adj_scalars = [F(0.0)] if scalars else []
             wp.launch(
-                kernel, **kwargs, adjoint=True,
-                adj_inputs=[wp_array(adj[0]), wp_array(adj[1]), *adj_scalars, 0], adj_outputs=[wp_array(adj[2])],
+                kernel,
+                **kwargs,
+                adjoint=True,
+                adj_inputs=[wp_array(adj[0]), wp_array(adj[1]), *adj_scalars, 0],
+                adj_outputs=[wp_array(adj[2])],
             )
 
     preload(kernel, warp_device(x.device))

@@ -28,9 +28,18 @@ def build_grad_kernels(F) -> SimpleNamespace:
 
     @wp.func
     def store_grads(
-        b: int, i: int, j: int, m: V3, g_rho: V3, g_f0: V3, g_rough: F, g_n: V3,
-        g_diffuse: wp.array4d(dtype=F), g_normal: wp.array4d(dtype=F),
-        g_roughness: wp.array4d(dtype=F), g_specular: wp.array4d(dtype=F),
+        b: int,
+        i: int,
+        j: int,
+        m: V3,
+        g_rho: V3,
+        g_f0: V3,
+        g_rough: F,
+        g_n: V3,
+        g_diffuse: wp.array4d(dtype=F),
+        g_normal: wp.array4d(dtype=F),
+        g_roughness: wp.array4d(dtype=F),
+        g_specular: wp.array4d(dtype=F),
     ):
         g_m = grad.normalize_grad(m, g_n)
         for c in range(3):
@@ -77,8 +86,21 @@ def build_grad_kernels(F) -> SimpleNamespace:
             row = b * num_lights + k
             u = brdf.load_rgb(grad_out, row, i, j)
             radiance, a_rho, a_f0, a_rough, a_n = grad.radiance_and_map_grads(
-                p, brdf.load_position(light, b, k), brdf.load_position(camera, b, k),
-                n, rho_d, f0, rough, intensity, inverse_square, rough_floor, fresnel[row, i, j], u, 0, zero, F(0.0),
+                p,
+                brdf.load_position(light, b, k),
+                brdf.load_position(camera, b, k),
+                n,
+                rho_d,
+                f0,
+                rough,
+                intensity,
+                inverse_square,
+                rough_floor,
+                fresnel[row, i, j],
+                u,
+                0,
+                zero,
+                F(0.0),
             )
             g_rho += a_rho
             g_f0 += a_f0
@@ -127,9 +149,21 @@ def build_grad_kernels(F) -> SimpleNamespace:
         for k in range(num_lights):
             row = b * num_lights + k
             radiance, a_rho, a_f0, a_rough, a_n = grad.radiance_and_map_grads(
-                p, brdf.load_position(light, b, k), brdf.load_position(camera, b, k),
-                n, rho_d, f0, rough, intensity, inverse_square, rough_floor, fresnel[row, i, j],
-                V3(g, F(0.0), F(0.0)), 1, brdf.load_rgb(target, row, i, j), eps,
+                p,
+                brdf.load_position(light, b, k),
+                brdf.load_position(camera, b, k),
+                n,
+                rho_d,
+                f0,
+                rough,
+                intensity,
+                inverse_square,
+                rough_floor,
+                fresnel[row, i, j],
+                V3(g, F(0.0), F(0.0)),
+                1,
+                brdf.load_rgb(target, row, i, j),
+                eps,
             )
             g_rho += a_rho
             g_f0 += a_f0

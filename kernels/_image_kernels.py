@@ -100,8 +100,16 @@ def build_image_kernels(F) -> SimpleNamespace:
         s = F(0.0)
         for k in range(num_lights):
             radiance, w = brdf.point_light_radiance(
-                p, brdf.load_position(light, b, k), brdf.load_position(camera, b, k),
-                n, rho_d, f0, rough, intensity, inverse_square, rough_floor,
+                p,
+                brdf.load_position(light, b, k),
+                brdf.load_position(camera, b, k),
+                n,
+                rho_d,
+                f0,
+                rough,
+                intensity,
+                inverse_square,
+                rough_floor,
             )
             row = b * num_lights + k
             if store_fresnel != 0:

@@ -7,7 +7,6 @@ threads. Pixel (i, j) sits at x = ((j + 0.5)/W - 0.5) * size, y = -((i + 0.5)/H 
 * size, z = 0 (SPEC section 2; row 0 is +y).
 """
 
-
 from functools import cache
 from types import SimpleNamespace
 
@@ -53,8 +52,16 @@ def build_render_kernels(F) -> SimpleNamespace:
         n = brdf.safe_normalize(m)
         for k in range(num_lights):
             radiance, w = brdf.point_light_radiance(
-                p, brdf.load_position(light, b, k), brdf.load_position(camera, b, k),
-                n, rho_d, f0, rough, intensity, inverse_square, rough_floor,
+                p,
+                brdf.load_position(light, b, k),
+                brdf.load_position(camera, b, k),
+                n,
+                rho_d,
+                f0,
+                rough,
+                intensity,
+                inverse_square,
+                rough_floor,
             )
             row = b * num_lights + k
             out[row, 0, i, j] = radiance[0]

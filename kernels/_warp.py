@@ -11,16 +11,22 @@ from __future__ import annotations
 import os
 import sys
 import tempfile
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from functools import cache
-from typing import Callable, Iterator
 
 import torch
 import warp as wp
 
 __all__ = [
-    "ensure_init", "warp_device", "warp_scalar", "cpu_threads", "chunk_bounds", "parallel_chunks", "preload",
+    "ensure_init",
+    "warp_device",
+    "warp_scalar",
+    "cpu_threads",
+    "chunk_bounds",
+    "parallel_chunks",
+    "preload",
     "wp_array",
 ]
 

@@ -20,11 +20,9 @@ finite at grazing angles without an epsilon (k >= floor^2 / 2 > 0). All dot prod
 are clamped at >= 0. ``kernels.reference`` evaluates exactly the same expressions.
 """
 
-
+import math
 from functools import cache
 from types import SimpleNamespace
-
-import math
 
 import warp as wp
 
@@ -109,18 +107,38 @@ def build_brdf(F) -> SimpleNamespace:
 
     @wp.func
     def load_pixel(
-        diffuse: wp.array4d(dtype=F), normal: wp.array4d(dtype=F), roughness: wp.array4d(dtype=F),
-        specular: wp.array4d(dtype=F), b: int, i: int, j: int, plane_size: F,
+        diffuse: wp.array4d(dtype=F),
+        normal: wp.array4d(dtype=F),
+        roughness: wp.array4d(dtype=F),
+        specular: wp.array4d(dtype=F),
+        b: int,
+        i: int,
+        j: int,
+        plane_size: F,
     ):
         """Pixel (i, j) of batch item b, shared by every shading kernel: returns (plane
         point, diffuse, specular, raw normal as stored, roughness)."""
         p = plane_point(i, j, diffuse.shape[2], diffuse.shape[3], plane_size)
-        return p, load_rgb(diffuse, b, i, j), load_rgb(specular, b, i, j), load_rgb(normal, b, i, j), roughness[b, 0, i, j]
+        return (
+            p,
+            load_rgb(diffuse, b, i, j),
+            load_rgb(specular, b, i, j),
+            load_rgb(normal, b, i, j),
+            roughness[b, 0, i, j],
+        )
 
     @wp.func
     def point_light_radiance(
-        p: V3, light_pos: V3, camera_pos: V3, n: V3, rho_d: V3, f0: V3, rough: F,
-        intensity: V3, inverse_square: int, rough_floor: F,
+        p: V3,
+        light_pos: V3,
+        camera_pos: V3,
+        n: V3,
+        rho_d: V3,
+        f0: V3,
+        rough: F,
+        intensity: V3,
+        inverse_square: int,
+        rough_floor: F,
     ):
         """Linear radiance leaving plane point p towards the camera, lit by a point light,
         and the Fresnel weight w (``fresnel_weight``)."""

@@ -53,8 +53,21 @@ def build_brdf_grad(F) -> SimpleNamespace:
 
     @wp.func
     def radiance_and_map_grads(
-        p: V3, light_pos: V3, camera_pos: V3, n: V3, rho_d: V3, f0: V3, rough: F,
-        intensity: V3, inverse_square: int, rough_floor: F, w: F, u: V3, log_l1: int, target: V3, eps: F,
+        p: V3,
+        light_pos: V3,
+        camera_pos: V3,
+        n: V3,
+        rho_d: V3,
+        f0: V3,
+        rough: F,
+        intensity: V3,
+        inverse_square: int,
+        rough_floor: F,
+        w: F,
+        u: V3,
+        log_l1: int,
+        target: V3,
+        eps: F,
     ):
         """Map gradients of one light's radiance at one pixel, for unit normal ``n``.
 

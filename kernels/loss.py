@@ -12,7 +12,7 @@ the kernel, then a float64 sum in torch), so means stay accurate over millions o
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import torch
 
@@ -161,8 +161,10 @@ def sample_loss_lights(
     camera_s = hemisphere(n_specular) * distance(n_specular)
     centre = (rand(batch, n_specular, 2) * 2 - 1) * half * 0.75
     shift = torch.cat([centre, torch.zeros(batch, n_specular, 1, dtype=torch.float64)], -1)
-    light_s = camera_s * torch.tensor([-1.0, -1.0, 1.0], dtype=torch.float64) * (
-        distance(n_specular) / camera_s.norm(dim=-1, keepdim=True)
+    light_s = (
+        camera_s
+        * torch.tensor([-1.0, -1.0, 1.0], dtype=torch.float64)
+        * (distance(n_specular) / camera_s.norm(dim=-1, keepdim=True))
     )
     light = torch.cat([light_d, light_s + shift], 1)
     camera = torch.cat([camera_d, camera_s + shift], 1)
@@ -190,8 +192,11 @@ def map_rendering_loss(
     p = resolve_preset(preset, **overrides)
     if light_pos is None:
         light_pos, camera_pos = sample_loss_lights(
-            pred[0].shape[0], plane_size=p.plane_size, generator=generator,
-            dtype=pred[0].dtype, device=pred[0].device,
+            pred[0].shape[0],
+            plane_size=p.plane_size,
+            generator=generator,
+            dtype=pred[0].dtype,
+            device=pred[0].device,
         )
     with torch.no_grad():
         target_images = render(*[t.detach() for t in target], light_pos, camera_pos, preset=p)

@@ -39,7 +39,7 @@ class RenderPreset:
         intensity: float | tuple[float, float, float] | None = None,
         inverse_square: bool | None = None,
         roughness_floor: float | None = None,
-    ) -> "RenderPreset":
+    ) -> RenderPreset:
         """Return a copy with the given fields replaced (None keeps the preset's)."""
         changes: dict = {}
         if plane_size is not None:

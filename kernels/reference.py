@@ -12,7 +12,7 @@ import math
 import torch
 
 from kernels.brdf import FRESNEL_A, FRESNEL_B, NORMALIZE_EPS
-from kernels.geometry import highlight_offsets, mirror_point
+from kernels.geometry import highlight_offsets
 from kernels.presets import RenderPreset, get_preset
 
 __all__ = [
@@ -28,7 +28,7 @@ __all__ = [
     "LOG_EPS",
 ]
 
-from kernels.loss import LOG_EPS  # noqa: E402  one constant for kernel and twin
+from kernels.loss import LOG_EPS
 
 
 def _normalize(x: torch.Tensor, dim: int) -> torch.Tensor:
@@ -70,8 +70,16 @@ def cook_torrance(n, l, v, rho_d, f0, rough, rough_floor: float) -> torch.Tensor
 
 
 def render(
-    diffuse, normal, roughness, specular, light_pos, camera_pos, *,
-    preset: str | RenderPreset = "dgrsise", return_lvh: bool = False, **overrides,
+    diffuse,
+    normal,
+    roughness,
+    specular,
+    light_pos,
+    camera_pos,
+    *,
+    preset: str | RenderPreset = "dgrsise",
+    return_lvh: bool = False,
+    **overrides,
 ):
     """Reference for ``kernels.render``: ``[B, K, 3, H, W]`` linear radiance."""
     p = get_preset(preset).with_overrides(**overrides)
@@ -128,7 +136,6 @@ def translate(features: torch.Tensor, offsets: torch.Tensor) -> torch.Tensor:
     return (1 - fy) * top + fy * bottom
 
 
-
 def log_l1_loss(x: torch.Tensor, y: torch.Tensor, eps: float = LOG_EPS) -> torch.Tensor:
     """Reference for ``kernels.log_l1_loss``."""
     return (torch.log(x + eps) - torch.log(y.detach() + eps)).abs().mean()
@@ -140,8 +147,17 @@ def mse_loss(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
 
 
 def rendering_loss(
-    diffuse, normal, roughness, specular, target, light_pos, camera_pos, *,
-    preset="dgrsise", eps: float = LOG_EPS, **overrides,
+    diffuse,
+    normal,
+    roughness,
+    specular,
+    target,
+    light_pos,
+    camera_pos,
+    *,
+    preset="dgrsise",
+    eps: float = LOG_EPS,
+    **overrides,
 ) -> torch.Tensor:
     """Reference for ``kernels.rendering_loss``: render, then log-L1 against target."""
     images = render(diffuse, normal, roughness, specular, light_pos, camera_pos, preset=preset, **overrides)

@@ -38,9 +38,7 @@ def check_maps(diffuse, normal, roughness, specular) -> tuple[int, int, int]:
     b, _, h, w = diffuse.shape
     for name, t in (("normal", normal), ("roughness", roughness), ("specular", specular)):
         if t.shape[0] != b or t.shape[2:] != (h, w):
-            raise ValueError(
-                f"{name} has shape {tuple(t.shape)}; expected batch {b} and size {h}x{w} like diffuse"
-            )
+            raise ValueError(f"{name} has shape {tuple(t.shape)}; expected batch {b} and size {h}x{w} like diffuse")
     if b == 0 or h == 0 or w == 0:
         raise ValueError(f"maps must be non-empty, got diffuse shape {tuple(diffuse.shape)}")
     check_finite(diffuse=diffuse, normal=normal, roughness=roughness, specular=specular)

@@ -13,8 +13,8 @@ import warp as wp
 
 from kernels._checks import check_finite, check_same, check_tensor
 from kernels._image_kernels import build_image_kernels
-from kernels.geometry import highlight_offsets, mirror_point  # re-exported
 from kernels._warp import chunk_bounds, ensure_init, parallel_chunks, preload, warp_device, warp_scalar, wp_array
+from kernels.geometry import highlight_offsets, mirror_point  # re-exported
 
 __all__ = ["translate", "highlight_offsets", "mirror_point"]
 
@@ -32,9 +32,15 @@ def _launch(features, offsets, out, *, adjoint=False, adj_features=None, adj_off
             wp.launch(kern, dim=(count, h, w), inputs=[wf, wo, start], outputs=[wout], device=dev, stream=stream)
             return
         wp.launch(
-            kern, dim=(count, h, w), inputs=[wf, wo, start], outputs=[wout],
+            kern,
+            dim=(count, h, w),
+            inputs=[wf, wo, start],
+            outputs=[wout],
             adj_inputs=[wp_array(adj_features), wp_array(adj_offsets), 0],
-            adj_outputs=[wp_array(adj_out)], adjoint=True, device=dev, stream=stream,
+            adj_outputs=[wp_array(adj_out)],
+            adjoint=True,
+            device=dev,
+            stream=stream,
         )
 
     # Batch chunks touch disjoint samples (features, offsets and outputs alike).
@@ -56,8 +62,13 @@ class _TranslateFunction(torch.autograd.Function):
         features, offsets, out = ctx.saved_tensors
         grad_features, grad_offsets = torch.zeros_like(features), torch.zeros_like(offsets)
         _launch(
-            features, offsets, out, adjoint=True, adj_features=grad_features,
-            adj_offsets=grad_offsets, adj_out=grad_out.contiguous().clone(),
+            features,
+            offsets,
+            out,
+            adjoint=True,
+            adj_features=grad_features,
+            adj_offsets=grad_offsets,
+            adj_out=grad_out.contiguous().clone(),
         )
         return grad_features, grad_offsets
 

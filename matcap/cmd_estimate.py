@@ -9,12 +9,12 @@ from pathlib import Path
 import torch
 
 import kernels
+from matcap.estimate import estimate_material, load_estimator
+from matcap.outputs import contact_sheet, write_image_pair
 from materials.io import load_capture, save_material, write_png
 from materials.io.atomic import atomic_folder
 from materials.io.encoding import chw_to_hwc
 from materials.lights import EVAL_LIGHTS
-from matcap.estimate import estimate_material, load_estimator
-from matcap.outputs import contact_sheet, write_image_pair
 
 __all__ = ["add_parser", "run", "ESTIMATE_MARKER"]
 
@@ -54,8 +54,13 @@ def run(args) -> int:
     camera = capture.camera_pos[0]
     novel = kernels.render(*maps, novel_lights, camera, **kw)[0]
     with atomic_folder(args.out, overwrite=args.overwrite, marker=ESTIMATE_MARKER) as tmp:
-        save_material(tmp / "material", material, preset=capture.preset, plane_size=capture.plane_size,
-                      provenance={"estimated_from": str(args.capture), "refine_steps": args.refine})
+        save_material(
+            tmp / "material",
+            material,
+            preset=capture.preset,
+            plane_size=capture.plane_size,
+            provenance={"estimated_from": str(args.capture), "refine_steps": args.refine},
+        )
         (tmp / "renders").mkdir()
         for k, image in enumerate(rerender):
             write_image_pair(tmp / "renders", f"input_{k:02d}", image)
@@ -63,8 +68,13 @@ def run(args) -> int:
             write_image_pair(tmp / "renders", f"novel_{k:02d}", image)
         rows = torch.cat([capture.images, rerender])
         write_png(tmp / "preview.png", chw_to_hwc(contact_sheet(kernels.tonemap(rows), columns=capture.num_views)))
-        info = {"capture": str(args.capture), "views": capture.num_views, "refine_steps": args.refine,
-                "refine_loss": history[-1:] and history[-1], "novel_lights": novel_lights.tolist()}
+        info = {
+            "capture": str(args.capture),
+            "views": capture.num_views,
+            "refine_steps": args.refine,
+            "refine_loss": history[-1:] and history[-1],
+            "novel_lights": novel_lights.tolist(),
+        }
         (tmp / ESTIMATE_MARKER).write_text(json.dumps(info, indent=2))
     print(f"wrote maps and {len(rerender) + len(novel)} re-renders to {args.out}")
     return 0

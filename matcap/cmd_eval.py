@@ -31,15 +31,32 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--out", required=True, type=Path, help="output folder (created)")
     r.add_argument("--count", type=int, default=16, help="held-out materials (default %(default)s)")
     r.add_argument("--size", type=int, default=64, help="image side in pixels (default %(default)s)")
-    r.add_argument("--methods", default=None, help="comma-separated relighter names (default: every "
-                   "registered one whose weights are present)")
-    r.add_argument("--checkpoint", action="append", default=[], metavar="NAME=PATH",
-                   help="checkpoint folder of a method (repeat); default: its shipped weights")
-    r.add_argument("--samples", type=int, default=1, help="samples of stochastic methods; >1 adds a "
-                   "'mean of N' row (default %(default)s)")
-    r.add_argument("--steps", default=None, metavar="N[,N...]", help="sampling steps of stochastic methods "
-                   "(default: theirs, 20 for diffusion); several, e.g. 10,1, evaluate each setting in the "
-                   "same run as rows 'NAME (N steps)'")
+    r.add_argument(
+        "--methods",
+        default=None,
+        help="comma-separated relighter names (default: every registered one whose weights are present)",
+    )
+    r.add_argument(
+        "--checkpoint",
+        action="append",
+        default=[],
+        metavar="NAME=PATH",
+        help="checkpoint folder of a method (repeat); default: its shipped weights",
+    )
+    r.add_argument(
+        "--samples",
+        type=int,
+        default=1,
+        help="samples of stochastic methods; >1 adds a 'mean of N' row (default %(default)s)",
+    )
+    r.add_argument(
+        "--steps",
+        default=None,
+        metavar="N[,N...]",
+        help="sampling steps of stochastic methods "
+        "(default: theirs, 20 for diffusion); several, e.g. 10,1, evaluate each setting in the "
+        "same run as rows 'NAME (N steps)'",
+    )
     r.add_argument("--chunk", type=int, default=4, help="materials per relight call (default %(default)s)")
     r.add_argument("--seed", type=int, default=0, help="generator seed of stochastic methods")
     r.add_argument("--overwrite", action="store_true", help="replace an output folder written by this command")
@@ -64,8 +81,18 @@ def run_estimator(args) -> int:
     from estimator.evaluate import cli
     from matcap.estimate import DEFAULT_ESTIMATOR
 
-    flags = ["--model", str(args.model or DEFAULT_ESTIMATOR), "--num", str(args.num), "--size", str(args.size),
-             "--refine-steps", str(args.refine_steps), "--out", str(args.out)]
+    flags = [
+        "--model",
+        str(args.model or DEFAULT_ESTIMATOR),
+        "--num",
+        str(args.num),
+        "--size",
+        str(args.size),
+        "--refine-steps",
+        str(args.refine_steps),
+        "--out",
+        str(args.out),
+    ]
     if args.num_threads:
         flags += ["--num-threads", str(args.num_threads)]
     cli(flags)
@@ -121,8 +148,8 @@ def _expand_steps(relighters: dict, steps: list[int]) -> dict:
 
 
 def run(args) -> int:
-    from materials.io.atomic import atomic_folder
     from matcap.estimator_relighter import register
+    from materials.io.atomic import atomic_folder
     from relight.evaluate import EvalConfig, evaluate, format_table, write_report
     from relight.interface import get_relighter, relighter_names
 

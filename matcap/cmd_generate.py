@@ -8,10 +8,10 @@ from pathlib import Path
 
 import torch
 
-from materials.lights import EVAL_CAMERA, EVAL_LIGHTS
 from matcap.args import parse_position, positions_or_default, set_sampling
 from matcap.errors import UsageError
 from matcap.outputs import write_image_pair
+from materials.lights import EVAL_CAMERA, EVAL_LIGHTS
 
 __all__ = ["add_parser", "run", "read_photo", "GENERATE_MARKER"]
 
@@ -30,18 +30,33 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("photo", type=Path, help="flash photo, .png or .exr")
     p.add_argument("--out", required=True, type=Path, help="output folder (created)")
-    p.add_argument("--light", action="append", metavar="X,Y,Z",
-                   help="target light position (repeat; write --light=-1,0,5 when x is negative); "
-                   "default: the 7 evaluation lights")
-    p.add_argument("--camera", default=",".join(str(v) for v in EVAL_CAMERA), metavar="X,Y,Z",
-                   help="camera (and flash) position (default %(default)s)")
-    p.add_argument("--model", default="bieron", help="relighter: bieron, diffusion, estimator, lambertian, input, or any "
-                   "registered one (default %(default)s)")
+    p.add_argument(
+        "--light",
+        action="append",
+        metavar="X,Y,Z",
+        help="target light position (repeat; write --light=-1,0,5 when x is negative); "
+        "default: the 7 evaluation lights",
+    )
+    p.add_argument(
+        "--camera",
+        default=",".join(str(v) for v in EVAL_CAMERA),
+        metavar="X,Y,Z",
+        help="camera (and flash) position (default %(default)s)",
+    )
+    p.add_argument(
+        "--model",
+        default="bieron",
+        help="relighter: bieron, diffusion, estimator, lambertian, input, or any registered one (default %(default)s)",
+    )
     p.add_argument("--checkpoint", type=Path, default=None, help="model folder (default: the shipped weights)")
     p.add_argument("--seed", type=int, default=0, help="seed of stochastic models")
     p.add_argument("--steps", type=int, default=None, help="sampling steps of the diffusion model (default 20)")
-    p.add_argument("--samples", type=int, default=None, help="diffusion: average this many samples per light "
-                   "(lower error, proportionally slower; default 1)")
+    p.add_argument(
+        "--samples",
+        type=int,
+        default=None,
+        help="diffusion: average this many samples per light (lower error, proportionally slower; default 1)",
+    )
     p.add_argument("--overwrite", action="store_true", help="replace an output folder written by this command")
     p.set_defaults(run=run)
 
@@ -61,8 +76,8 @@ def read_photo(path: Path) -> torch.Tensor:
 
 
 def run(args) -> int:
-    from materials.io.atomic import atomic_folder
     from matcap.estimator_relighter import register
+    from materials.io.atomic import atomic_folder
     from relight.interface import get_relighter
 
     register()

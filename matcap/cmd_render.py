@@ -9,13 +9,13 @@ from pathlib import Path
 import torch
 
 import kernels
+from matcap.args import parse_position, positions_or_default
+from matcap.outputs import contact_sheet, write_image_pair
 from materials.io import load_material
 from materials.io.atomic import atomic_folder
 from materials.lights import EVAL_CAMERA, eval_lights
 from materials.procedural import generate
 from materials.types import Material
-from matcap.args import parse_position, positions_or_default
-from matcap.outputs import contact_sheet, write_image_pair
 
 __all__ = ["add_parser", "run", "RENDER_MARKER", "DEFAULT_SEED"]
 
@@ -35,10 +35,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("material", nargs="?", help="material folder or INRIA PNG (default: built-in procedural)")
     p.add_argument("--out", required=True, type=Path, help="output folder (created)")
-    p.add_argument("--light", action="append", metavar="X,Y,Z", help="light position (repeat); default: "
-                   "the collocated flash plus the 7 evaluation lights")
-    p.add_argument("--camera", default=",".join(str(v) for v in EVAL_CAMERA), metavar="X,Y,Z",
-                   help="camera position (default %(default)s)")
+    p.add_argument(
+        "--light",
+        action="append",
+        metavar="X,Y,Z",
+        help="light position (repeat); default: the collocated flash plus the 7 evaluation lights",
+    )
+    p.add_argument(
+        "--camera",
+        default=",".join(str(v) for v in EVAL_CAMERA),
+        metavar="X,Y,Z",
+        help="camera position (default %(default)s)",
+    )
     p.add_argument("--seed", type=int, default=DEFAULT_SEED, help="procedural seed when no material is given")
     p.add_argument("--size", type=int, default=256, help="procedural material size (default %(default)s)")
     p.add_argument("--preset", default="dgrsise", choices=sorted(kernels.PRESETS), help="scene conventions")

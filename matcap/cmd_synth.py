@@ -52,9 +52,9 @@ def run(args) -> int:
                 save_material(tmp / name, material, provenance=provenance)
             else:
                 # INRIA renders are scaled to the Deschaintre plane: flash over the centre.
-                render = kernels.render(
-                    *(t[None] for t in material.map_tensors()), flash, flash[0], preset="dgrsise"
-                )[0, 0]
+                render = kernels.render(*(t[None] for t in material.map_tensors()), flash, flash[0], preset="dgrsise")[
+                    0, 0
+                ]
                 name += ".png"
                 save_material(tmp / name, material, fmt="inria", render=render)
             names.append(name)

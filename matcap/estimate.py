@@ -80,8 +80,15 @@ def estimate_material(
         if preset.inverse_square:
             intensity = tuple(v * scale * scale for v in intensity)
         result = refine(
-            model, images, light, camera, steps=refine_steps, progress=progress, preset=preset,
-            plane_size=model.config.plane_size, intensity=intensity,
+            model,
+            images,
+            light,
+            camera,
+            steps=refine_steps,
+            progress=progress,
+            preset=preset,
+            plane_size=model.config.plane_size,
+            intensity=intensity,
         )
         material, history = result.material, result.history
     else:

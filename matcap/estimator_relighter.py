@@ -16,8 +16,8 @@ import torch
 
 import kernels
 from estimator.model import SVBRDFEstimator
-from materials.types import Capture
 from matcap.estimate import estimate_material, load_estimator
+from materials.types import Capture
 from relight.interface import Relighter, register_relighter
 
 __all__ = ["EstimatorRelighter", "load_estimator_relighter", "register"]
@@ -45,8 +45,10 @@ class EstimatorRelighter(Relighter):
             material, _ = estimate_material(capture, self.model, progress=False)
             with torch.no_grad():
                 rendered = kernels.render(
-                    *(t[None] for t in material.map_tensors()), lights[b : b + 1].float(),
-                    cam[:, None].expand(1, k, 3).contiguous(), preset=self.preset,
+                    *(t[None] for t in material.map_tensors()),
+                    lights[b : b + 1].float(),
+                    cam[:, None].expand(1, k, 3).contiguous(),
+                    preset=self.preset,
                 )
             out.append(rendered[0])
         return torch.stack(out).to(photo.device, photo.dtype)

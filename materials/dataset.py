@@ -30,7 +30,7 @@ __all__ = [
 
 #: Seeds of training materials: [0, 1_000_000). Evaluation seeds lie far above, so
 #: no held-out material is ever trained on.
-TRAIN_SEEDS = range(0, 1_000_000)
+TRAIN_SEEDS = range(1_000_000)
 #: Held-out evaluation materials (64 of them; evaluations may take a prefix).
 EVAL_SEEDS = range(10_000_000, 10_000_064)
 
@@ -91,7 +91,9 @@ def scale_and_crop(material: Material, size: int, generator: torch.Generator, mi
     return Material(**out)
 
 
-def render_group(material: Material, light: torch.Tensor, camera: torch.Tensor, preset: str = "dgrsise") -> torch.Tensor:
+def render_group(
+    material: Material, light: torch.Tensor, camera: torch.Tensor, preset: str = "dgrsise"
+) -> torch.Tensor:
     """Render one unbatched material under V lights: ``[V, 3, H, W]`` linear radiance."""
     return kernels.render(*(t[None] for t in material.map_tensors()), light, camera, preset=preset)[0]
 

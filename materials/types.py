@@ -49,18 +49,14 @@ class Material:
             if not isinstance(t, torch.Tensor):
                 raise TypeError(f"Material.{name} must be a torch.Tensor, got {type(t).__name__}")
             if t.dim() < 3 or t.shape[-3] != channels:
-                raise MapError(
-                    f"Material.{name} must have shape [..., {channels}, H, W], got {tuple(t.shape)}"
-                )
+                raise MapError(f"Material.{name} must have shape [..., {channels}, H, W], got {tuple(t.shape)}")
             if t.shape[:-3] != ref.shape[:-3] or t.shape[-2:] != ref.shape[-2:]:
                 raise MapError(
                     f"Material.{name} has shape {tuple(t.shape)}, which does not match "
                     f"diffuse {tuple(ref.shape)} (batch dims and H, W must agree)"
                 )
             if t.device != ref.device or t.dtype != ref.dtype:
-                raise MapError(
-                    f"Material.{name} is {t.dtype} on {t.device}; diffuse is {ref.dtype} on {ref.device}"
-                )
+                raise MapError(f"Material.{name} is {t.dtype} on {t.device}; diffuse is {ref.dtype} on {ref.device}")
 
     # ------------------------------------------------------------------ properties
     @property
@@ -84,7 +80,7 @@ class Material:
     def maps(self) -> dict[str, torch.Tensor]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
-    def to(self, *args, **kwargs) -> "Material":
+    def to(self, *args, **kwargs) -> Material:
         return Material(**{k: v.to(*args, **kwargs) for k, v in self.maps().items()})
 
     def map_tensors(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -96,7 +92,7 @@ class Material:
         return torch.cat(list(self.map_tensors()), dim=-3)
 
     @staticmethod
-    def from_stacked(x: torch.Tensor) -> "Material":
+    def from_stacked(x: torch.Tensor) -> Material:
         """Inverse of :meth:`stacked`."""
         if x.dim() < 3 or x.shape[-3] != 10:
             raise MapError(f"stacked maps must have shape [..., 10, H, W], got {tuple(x.shape)}")
@@ -104,25 +100,23 @@ class Material:
         return Material(d, n, r, s)
 
     @staticmethod
-    def stack(materials: list["Material"]) -> "Material":
+    def stack(materials: list[Material]) -> Material:
         """Stack unbatched materials ``[C, H, W]`` into one batch ``[B, C, H, W]``."""
         if not materials:
             raise ValueError("cannot stack an empty list of materials")
         return Material(**{k: torch.stack([getattr(m, k) for m in materials]) for k in MAP_CHANNELS})
 
-    def __getitem__(self, index) -> "Material":
+    def __getitem__(self, index) -> Material:
         """Index the batch dims (e.g. ``batch[0]`` is one material)."""
         if not self.batch_shape:
             raise IndexError("an unbatched Material cannot be indexed")
         return Material(**{k: v[index] for k, v in self.maps().items()})
 
-    def crop(self, top: int, left: int, height: int, width: int) -> "Material":
-        return Material(
-            **{k: v[..., top : top + height, left : left + width] for k, v in self.maps().items()}
-        )
+    def crop(self, top: int, left: int, height: int, width: int) -> Material:
+        return Material(**{k: v[..., top : top + height, left : left + width] for k, v in self.maps().items()})
 
     # ------------------------------------------------------------------ checks
-    def validate(self, *, source: str = "material") -> "Material":
+    def validate(self, *, source: str = "material") -> Material:
         """Check values (finite, ranges, unit normals); raise ``MapError`` naming the map.
 
         Ranges allow a small slack (``RANGE_SLACK``) for 8-bit and half-float rounding.
@@ -197,7 +191,7 @@ class Capture:
     def shape(self) -> tuple[int, int]:
         return tuple(self.images.shape[-2:])  # type: ignore[return-value]
 
-    def to(self, *args, **kwargs) -> "Capture":
+    def to(self, *args, **kwargs) -> Capture:
         return replace(
             self,
             images=self.images.to(*args, **kwargs),

@@ -40,8 +40,15 @@ from relight import metrics
 from relight.interface import Relighter
 
 __all__ = [
-    "EvalConfig", "EvalData", "load_eval_data", "evaluate", "write_report", "format_table", "format_per_material",
-    "EVAL_CROP_SEED", "step_count",
+    "EvalConfig",
+    "EvalData",
+    "load_eval_data",
+    "evaluate",
+    "write_report",
+    "format_table",
+    "format_per_material",
+    "EVAL_CROP_SEED",
+    "step_count",
 ]
 
 #: Seed of the evaluation crops (``GroupConfig.seed``); the materials come from EVAL_SEEDS.
@@ -286,8 +293,13 @@ def _confidence_picture(result: dict, name: str, path: Path, materials: int = 4,
             if c < 3:
                 ax.imshow(kernels.tonemap(cells[c]).permute(1, 2, 0).clamp(0, 1).numpy(), interpolation="nearest")
             else:
-                ax.imshow((err if c == 3 else std)[r, light].numpy(), cmap="magma", vmin=0, vmax=max(vmax, 1e-6),
-                          interpolation="nearest")
+                ax.imshow(
+                    (err if c == 3 else std)[r, light].numpy(),
+                    cmap="magma",
+                    vmin=0,
+                    vmax=max(vmax, 1e-6),
+                    interpolation="nearest",
+                )
             ax.set_xticks([])
             ax.set_yticks([])
             if r == 0:
@@ -320,8 +332,10 @@ def write_report(result: dict, folder: Path, command: str | None = None) -> list
         if "sampling_steps" in r:
             md.append(f"{r['method']}: {step_count(r['sampling_steps'], 'sampling step')} per sample.")
         if "std_error_corr" in r:
-            md.append(f"{r['method']}: Pearson correlation between the per-pixel std across samples and the "
-                      f"absolute error of the mean: {r['std_error_corr']:.3f}.")
+            md.append(
+                f"{r['method']}: Pearson correlation between the per-pixel std across samples and the "
+                f"absolute error of the mean: {r['std_error_corr']:.3f}."
+            )
     md += ["", "## PSNR per material (dB, mean over the lights)", "", format_per_material(result), ""]
     paths = [folder / "relight_eval.md", folder / "relight_eval.json", folder / "relight_eval.png"]
     paths[0].write_text("\n".join(md))

@@ -6,11 +6,11 @@ import torch
 
 import kernels
 from estimator import SVBRDFEstimator
+from matcap.cli import main
 from materials.io import save_capture
 from materials.lights import eval_lights
 from materials.procedural import generate
 from materials.types import Capture
-from matcap.cli import main
 
 
 def _capture(tmp_path, views=3):
@@ -32,8 +32,9 @@ def _tiny_model(tmp_path):
 
 def test_estimate_writes_maps_and_rerenders(tmp_path):
     out = tmp_path / "out"
-    code = main(["estimate", str(_capture(tmp_path)), "--out", str(out), "--model", str(_tiny_model(tmp_path)),
-                 "--refine", "3"])
+    code = main(
+        ["estimate", str(_capture(tmp_path)), "--out", str(out), "--model", str(_tiny_model(tmp_path)), "--refine", "3"]
+    )
     assert code == 0
     assert (out / "material" / "diffuse.exr").is_file() and (out / "material" / "normal.png").is_file()
     assert len(list((out / "renders").glob("input_*.exr"))) == 3
@@ -53,7 +54,23 @@ def test_estimate_bad_capture_is_clear(tmp_path, capsys):
 
 def test_eval_estimator_command(tmp_path):
     out = tmp_path / "eval"
-    code = main(["eval", "estimator", "--model", str(_tiny_model(tmp_path)), "--num", "1", "--size", "32",
-                 "--refine-steps", "1", "--out", str(out), "--num-threads", "1"])
+    code = main(
+        [
+            "eval",
+            "estimator",
+            "--model",
+            str(_tiny_model(tmp_path)),
+            "--num",
+            "1",
+            "--size",
+            "32",
+            "--refine-steps",
+            "1",
+            "--out",
+            str(out),
+            "--num-threads",
+            "1",
+        ]
+    )
     assert code == 0
     assert any(out.glob("*.md")) and any(out.glob("*.json"))

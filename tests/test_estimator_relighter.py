@@ -66,8 +66,20 @@ def test_missing_checkpoint_is_a_clear_error(tmp_path):
 
 def test_eval_relight_has_an_estimator_row(tmp_path, tiny_estimator):
     out = tmp_path / "e"
-    argv = ["eval", "relight", "--count", "1", "--size", "32", "--methods", "lambertian,estimator",
-            "--checkpoint", f"estimator={tiny_estimator}", "--out", str(out)]
+    argv = [
+        "eval",
+        "relight",
+        "--count",
+        "1",
+        "--size",
+        "32",
+        "--methods",
+        "lambertian,estimator",
+        "--checkpoint",
+        f"estimator={tiny_estimator}",
+        "--out",
+        str(out),
+    ]
     assert main(argv) == 0
     rows = json.loads((out / "relight_eval.json").read_text())["rows"]
     assert [r["method"] for r in rows] == ["lambertian", "estimator"]

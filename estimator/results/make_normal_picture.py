@@ -7,16 +7,17 @@ alone, from flash + 7 renders; no refinement. Normals shown as 0.5 + 2.5 * (x, y
 around flat grey-blue, so that relief of a few degrees is visible (plain 0.5 + 0.5 n
 would show all three as nearly the same flat colour).
 """
+
 import torch
 
 import kernels
 from estimator.evaluate import EVAL_CROP_SEED
+from matcap.estimate import load_estimator
+from matcap.outputs import contact_sheet
 from materials.dataset import EVAL_SEEDS, GroupConfig, RenderedGroups
 from materials.io import write_png
 from materials.io.encoding import chw_to_hwc
 from materials.lights import eval_lights
-from matcap.estimate import load_estimator
-from matcap.outputs import contact_sheet
 
 torch.set_num_threads(1)
 #: Exaggeration of the normal display (module docstring).
@@ -43,9 +44,11 @@ for i in relief.argsort(descending=True)[:3].tolist():
         one = model(imgs[:, :1], light[None, :1], camera[None, :1])
         eight = model(imgs, light[None], camera[None])
     rows += [kernels.tonemap(imgs[0, 0]), show(m.normal), show(one.normal[0]), show(eight.normal[0])]
-    print(f"seed {int(EVAL_SEEDS[i])}: normal MSE 1 input {float(((one.normal[0] - m.normal) ** 2).mean()):.5f}, "
-          f"8 inputs {float(((eight.normal[0] - m.normal) ** 2).mean()):.5f}, "
-          f"flat {float(((torch.tensor([0.0, 0, 1])[:, None, None] - m.normal) ** 2).mean()):.5f}")
+    print(
+        f"seed {int(EVAL_SEEDS[i])}: normal MSE 1 input {float(((one.normal[0] - m.normal) ** 2).mean()):.5f}, "
+        f"8 inputs {float(((eight.normal[0] - m.normal) ** 2).mean()):.5f}, "
+        f"flat {float(((torch.tensor([0.0, 0, 1])[:, None, None] - m.normal) ** 2).mean()):.5f}"
+    )
 sheet = contact_sheet(torch.stack(rows), columns=4)
 sheet = torch.nn.functional.interpolate(sheet[None], scale_factor=3, mode="nearest")[0]
 write_png("estimator/results/normals_1_vs_8.png", chw_to_hwc(sheet))

@@ -88,8 +88,7 @@ _MATERIAL_LOOKED_FOR = (
     f"({'/'.join(MATSYNTH_MAPS)} as .png/.jpg/.exr), or an INRIA .png of five panels"
 )
 _CAPTURE_LOOKED_FOR = (
-    f"a folder with {CAPTURE_JSON} (ours), or a MaterialGAN folder "
-    "(0.png ... N-1.png with camera_pos.txt)"
+    f"a folder with {CAPTURE_JSON} (ours), or a MaterialGAN folder (0.png ... N-1.png with camera_pos.txt)"
 )
 
 

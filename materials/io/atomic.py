@@ -12,9 +12,9 @@ from __future__ import annotations
 import os
 import secrets
 import shutil
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
 
 from materials.io.errors import FormatError
 
@@ -54,9 +54,7 @@ def atomic_file(path: str | os.PathLike) -> Iterator[Path]:
 
 
 @contextmanager
-def atomic_folder(
-    folder: str | os.PathLike, *, overwrite: bool = False, marker: str | None = None
-) -> Iterator[Path]:
+def atomic_folder(folder: str | os.PathLike, *, overwrite: bool = False, marker: str | None = None) -> Iterator[Path]:
     """Yield an empty temporary sibling folder; on success rename it to ``folder``.
 
     Args:
@@ -81,8 +79,7 @@ def atomic_folder(
             raise FileExistsError(f"{folder}: exists and is not a folder; not replacing it")
         if any(folder.iterdir()) and (marker is None or not (folder / marker).is_file()):
             raise FileExistsError(
-                f"{folder}: exists and does not look like a folder this writer made "
-                f"(no {marker}); not replacing it"
+                f"{folder}: exists and does not look like a folder this writer made (no {marker}); not replacing it"
             )
 
     check_target()

@@ -12,8 +12,8 @@ channel set, and NaN or inf values. Writes are float32, uncompressed or ZIP, and
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import OpenEXR
@@ -88,15 +88,11 @@ def read_exr(path: str | os.PathLike, channels: Sequence[str] | None = None) -> 
         elif names == set(GREY):
             order = GREY
         else:
-            raise FormatError(
-                path, f"unexpected EXR channels {sorted(names)}; expected R,G,B or Y"
-            )
+            raise FormatError(path, f"unexpected EXR channels {sorted(names)}; expected R,G,B or Y")
     else:
         order = tuple(channels)
         if names != set(order):
-            raise FormatError(
-                path, f"unexpected EXR channels {sorted(names)}; expected {','.join(order)}"
-            )
+            raise FormatError(path, f"unexpected EXR channels {sorted(names)}; expected {','.join(order)}")
 
     planes = []
     for name in order:
@@ -167,6 +163,5 @@ def write_exr(
     # The binding reads the buffer as C-contiguous whatever its strides: copy each plane.
     planes = {name: np.ascontiguousarray(data[..., i]) for i, name in enumerate(channels)}
     header = {"compression": _COMPRESSION[compression], "type": OpenEXR.scanlineimage}
-    with atomic_file(path) as tmp:
-        with OpenEXR.File(header, planes) as exr:
-            exr.write(str(tmp))
+    with atomic_file(path) as tmp, OpenEXR.File(header, planes) as exr:
+        exr.write(str(tmp))

@@ -70,9 +70,7 @@ def read_inria(path: str | os.PathLike) -> tuple[Material, torch.Tensor]:
             f"panels are {height}x{side} (H x W), not square: width {width} must be 5 x height {height} "
             f"({' | '.join(INRIA_PANELS)})",
         )
-    panels = {
-        name: hwc_to_chw(image[:, i * side : (i + 1) * side]) for i, name in enumerate(INRIA_PANELS)
-    }
+    panels = {name: hwc_to_chw(image[:, i * side : (i + 1) * side]) for i, name in enumerate(INRIA_PANELS)}
     material = Material(
         diffuse=panels["diffuse"],
         normal=decode_normal(panels["normal"]),

@@ -59,9 +59,7 @@ def find_numbered_images(folder: str | os.PathLike) -> list[Path]:
     indices = sorted(by_index)
     if indices and indices != list(range(len(indices))):
         gaps = sorted(set(range(max(indices) + 1)) - set(indices))
-        raise FormatError(
-            folder, f"photos must be numbered 0 .. N-1 without gaps; missing index(es) {gaps[:10]}"
-        )
+        raise FormatError(folder, f"photos must be numbered 0 .. N-1 without gaps; missing index(es) {gaps[:10]}")
     return [by_index[i][0] for i in indices]
 
 
@@ -145,9 +143,7 @@ def read_materialgan(folder: str | os.PathLike) -> Capture:
 
     camera_path, light_path = folder / "camera_pos.txt", folder / "light_pos.txt"
     if not camera_path.is_file():
-        raise FormatError(
-            camera_path, "missing positions file: camera_pos.txt (one x, y, z per photo, cm) is required"
-        )
+        raise FormatError(camera_path, "missing positions file: camera_pos.txt (one x, y, z per photo, cm) is required")
     camera_pos = _positions(camera_path, count)
     if light_path.is_file():
         light_pos, light_source = _positions(light_path, count), light_path.name

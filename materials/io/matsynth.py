@@ -78,9 +78,7 @@ def find_matsynth_maps(folder: str | os.PathLike) -> dict[str, Path]:
         best = min(_EXTENSION_RANK[p.suffix.lower()] for p in paths)
         chosen = [p for p in paths if _EXTENSION_RANK[p.suffix.lower()] == best]
         if len(chosen) > 1:
-            raise FormatError(
-                folder, f"several files could be the {name} map: {', '.join(p.name for p in chosen)}"
-            )
+            raise FormatError(folder, f"several files could be the {name} map: {', '.join(p.name for p in chosen)}")
         found[name] = chosen[0]
     return found
 
@@ -130,9 +128,7 @@ def read_matsynth(folder: str | os.PathLike, *, size: int | None = None) -> tupl
         raise FormatError(folder, "MatSynth folder does not exist" if not folder.exists() else "not a folder")
     found = find_matsynth_maps(folder)
 
-    missing_by_workflow = {
-        workflow: [m for m in needed if m not in found] for workflow, needed in _WORKFLOWS.items()
-    }
+    missing_by_workflow = {workflow: [m for m in needed if m not in found] for workflow, needed in _WORKFLOWS.items()}
     # Prefer diffuse + specular when complete; otherwise metallic-roughness (MatSynth's own).
     if not missing_by_workflow["diffuse-specular"]:
         workflow = "diffuse-specular"
@@ -186,4 +182,3 @@ def read_matsynth(folder: str | os.PathLike, *, size: int | None = None) -> tupl
         "original_size": [height, width],
     }
     return material, meta
-

@@ -224,9 +224,7 @@ def read_material(folder: str | os.PathLike) -> tuple[Material, dict]:
         elif png_path.exists():
             image = read_png(png_path)
             if image.shape[-1] != len(channels) and not (name == "roughness" and image.shape[-1] == 3):
-                raise FormatError(
-                    png_path, f"{name} map has {image.shape[-1]} channels; expected {len(channels)}"
-                )
+                raise FormatError(png_path, f"{name} map has {image.shape[-1]} channels; expected {len(channels)}")
             # A grey roughness map re-saved as RGB by an editor: its channels are equal.
             t = hwc_to_chw(image[..., :1] if name == "roughness" else image)
             maps[name] = _decode_png(name, t)
@@ -234,9 +232,7 @@ def read_material(folder: str | os.PathLike) -> tuple[Material, dict]:
         else:
             missing.append(name)
     if missing:
-        raise FormatError(
-            folder, f"missing maps: {', '.join(missing)} (looked for <map>.exr, then <map>.png)"
-        )
+        raise FormatError(folder, f"missing maps: {', '.join(missing)} (looked for <map>.exr, then <map>.png)")
     require_same_size(folder, {sources[k]: tuple(v.shape[-2:]) for k, v in maps.items()})
     material = Material(**maps).validate(source=str(folder))
     return material, {**meta, "format": "ours", "sources": sources}

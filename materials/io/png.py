@@ -108,9 +108,7 @@ def read_ldr(path: str | os.PathLike) -> np.ndarray:
         pixels = pixels[..., None]
     channels = pixels.shape[-1]
     if channels not in (1, 3):
-        raise FormatError(
-            path, f"{kind} has {channels} channels (mode {mode}); expected 1 (grey) or 3 (RGB), no alpha"
-        )
+        raise FormatError(path, f"{kind} has {channels} channels (mode {mode}); expected 1 (grey) or 3 (RGB), no alpha")
     return pixels.astype(np.float32) / 255.0
 
 
@@ -152,9 +150,7 @@ def write_png(path: str | os.PathLike, array: np.ndarray) -> None:
         raise MapError(f"{path}: refusing to write NaN or inf values to a PNG")
     lo, hi = float(data.min()), float(data.max())
     if lo < -RANGE_SLACK or hi > 1.0 + RANGE_SLACK:
-        raise MapError(
-            f"{path}: PNG values must lie in [0, 1] (encode or tone-map first), found [{lo:.4g}, {hi:.4g}]"
-        )
+        raise MapError(f"{path}: PNG values must lie in [0, 1] (encode or tone-map first), found [{lo:.4g}, {hi:.4g}]")
     codes = np.round(np.clip(data, 0.0, 1.0) * 255.0).astype(np.uint8)
     image = Image.fromarray(codes[..., 0] if codes.shape[-1] == 1 else codes)
     with atomic_file(path) as tmp:

@@ -18,8 +18,9 @@ F0) that the method exists for (SPEC section 1: a saturated flash highlight).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping
 from types import MappingProxyType
-from typing import Callable, Mapping, NamedTuple
+from typing import NamedTuple
 
 import torch
 
@@ -356,9 +357,7 @@ def stone(gen: torch.Generator, size: int, glossy: bool, device="cpu") -> Layers
         clouds = fbm(gen, size, cells, octaves=5, device=device)[0]
         # Perlin's marble: sin(phase + k * turbulence), turbulence = sum of |noise| over
         # octaves; the |.| creases give veins their sharp bends and branching.
-        turb = sum(
-            lattice_noise(gen, size, cells * 2**o, device=device)[0].abs() * 0.5**o for o in range(5)
-        )
+        turb = sum(lattice_noise(gen, size, cells * 2**o, device=device)[0].abs() * 0.5**o for o in range(5))
         fade = smoothstep(-0.8, 0.8, lattice_noise(gen, size, cells, device=device)[0])
         phase = m * x + n * y + turbulence * turb
         vein = (1 - torch.sin(math.pi * phase).abs()) ** sharp
@@ -529,8 +528,14 @@ def metal(gen: torch.Generator, size: int, glossy: bool, device="cpu") -> Layers
         scratches = torch.zeros(1, size, size, device=device)
         for _ in range(randint(gen, 2, 5)):
             n = spectral_noise(
-                gen, size, f_lo=8, f_hi=128, exponent=0.0,
-                anisotropy=uniform(gen, 60, 150), angle=uniform(gen, 0.0, math.pi), device=device,
+                gen,
+                size,
+                f_lo=8,
+                f_hi=128,
+                exponent=0.0,
+                anisotropy=uniform(gen, 60, 150),
+                angle=uniform(gen, 0.0, math.pi),
+                device=device,
             )
             scratches = scratches + (n - uniform(gen, 2.0, 2.8)).clamp(min=0.0)
         scratches = scratches.clamp(max=1.0)
@@ -545,8 +550,14 @@ def metal(gen: torch.Generator, size: int, glossy: bool, device="cpu") -> Layers
         roughness = base_r * (1 + 0.1 * smudge)
     else:  # polished: smudges and faint hairline scratches only
         hair = spectral_noise(
-            gen, size, f_lo=16, f_hi=128, exponent=0.0, anisotropy=100.0,
-            angle=uniform(gen, 0.0, math.pi), device=device,
+            gen,
+            size,
+            f_lo=16,
+            f_hi=128,
+            exponent=0.0,
+            anisotropy=100.0,
+            angle=uniform(gen, 0.0, math.pi),
+            device=device,
         )
         lines = (hair - 2.6).clamp(min=0.0)
         height = -1e-4 * lines
@@ -580,8 +591,14 @@ def leather(gen: torch.Generator, size: int, glossy: bool, device="cpu") -> Laye
     x, y = _coords(gen, size, device)
     c = worley(gen, x + dx, y + dy, cells, jitter=0.9)
     wrinkles = spectral_noise(
-        gen, size, f_lo=2, f_hi=16, exponent=1.0,
-        anisotropy=uniform(gen, 1.5, 4.0), angle=uniform(gen, 0, math.pi), device=device,
+        gen,
+        size,
+        f_lo=2,
+        f_hi=16,
+        exponent=1.0,
+        anisotropy=uniform(gen, 1.5, 4.0),
+        angle=uniform(gen, 0, math.pi),
+        device=device,
     )
     pores_n = spectral_noise(gen, size, f_lo=64, f_hi=128, exponent=0.0, device=device)
     mottle = spectral_noise(gen, size, f_lo=1, f_hi=12, exponent=1.0, device=device)
@@ -704,14 +721,16 @@ def terrazzo(gen: torch.Generator, size: int, glossy: bool, device="cpu") -> Lay
 
 #: Family name -> function, in the canonical order (``materials.procedural.FAMILIES``);
 #: read-only so no caller can re-register a family behind another's back.
-FAMILY_FUNCTIONS: Mapping[str, Family] = MappingProxyType({
-    "tiles": tiles,
-    "bricks": bricks,
-    "wood": wood,
-    "stone": stone,
-    "fabric": fabric,
-    "metal": metal,
-    "leather": leather,
-    "paint": paint,
-    "terrazzo": terrazzo,
-})
+FAMILY_FUNCTIONS: Mapping[str, Family] = MappingProxyType(
+    {
+        "tiles": tiles,
+        "bricks": bricks,
+        "wood": wood,
+        "stone": stone,
+        "fabric": fabric,
+        "metal": metal,
+        "leather": leather,
+        "paint": paint,
+        "terrazzo": terrazzo,
+    }
+)

@@ -24,7 +24,8 @@ Primitives:
 from __future__ import annotations
 
 import math
-from typing import NamedTuple, Sequence, TypeVar
+from collections.abc import Sequence
+from typing import NamedTuple, TypeVar
 
 import torch
 

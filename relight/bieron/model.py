@@ -175,11 +175,10 @@ class BieronRelighter(ModelMixin, ConfigMixin):
 
         self.conv_in = nn.Conv2d(INPUT_CHANNELS, widths[0], 3, padding=1)
         self.down = nn.ModuleList(
-            [nn.Identity()] + [nn.Conv2d(widths[i - 1], widths[i], 3, stride=2, padding=1) for i in range(1, len(widths))]
+            [nn.Identity()]
+            + [nn.Conv2d(widths[i - 1], widths[i], 3, stride=2, padding=1) for i in range(1, len(widths))]
         )
-        self.enc = nn.ModuleList(
-            nn.Sequential(*[ResBlock(c, c, g) for _ in range(blocks_per_level)]) for c in widths
-        )
+        self.enc = nn.ModuleList(nn.Sequential(*[ResBlock(c, c, g) for _ in range(blocks_per_level)]) for c in widths)
         top = widths[-1]
         self.mid = ResBlock(top + LVH_CHANNELS, top, g)
         # Decoder level i (coarse to fine, excluding the bottleneck): upsample level i+1,
@@ -188,7 +187,9 @@ class BieronRelighter(ModelMixin, ConfigMixin):
         base = 3 if residual == "lambertian" else 0
         for i in range(len(widths) - 2, -1, -1):
             cin = widths[i + 1] + widths[i] + LVH_CHANNELS + (base if i == 0 else 0)
-            blocks = [ResBlock(cin, widths[i], g)] + [ResBlock(widths[i], widths[i], g) for _ in range(blocks_per_level - 1)]
+            blocks = [ResBlock(cin, widths[i], g)] + [
+                ResBlock(widths[i], widths[i], g) for _ in range(blocks_per_level - 1)
+            ]
             self.dec.append(nn.Sequential(*blocks))
         self.norm_out = nn.GroupNorm(_groups(widths[0], g), widths[0])
         self.conv_out = nn.Conv2d(widths[0], 3, 3, padding=1)

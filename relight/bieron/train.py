@@ -203,8 +203,12 @@ def main(cfg: TrainConfig) -> dict:
         return path
 
     bar = tqdm(
-        total=cfg.steps, initial=step, disable=not (cfg.progress and accelerator.is_main_process),
-        mininterval=10, desc="bieron", dynamic_ncols=True,
+        total=cfg.steps,
+        initial=step,
+        disable=not (cfg.progress and accelerator.is_main_process),
+        mininterval=10,
+        desc="bieron",
+        dynamic_ncols=True,
     )
     stop = threading.Event()
     previous = {}

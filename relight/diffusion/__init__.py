@@ -14,8 +14,8 @@ __all__ = [
     "DEFAULT_STEPS",
 ]
 
-from relight.diffusion.relighter import DiffusionRelighter, load_diffusion_relighter  # noqa: E402
-from relight.interface import register_relighter  # noqa: E402
+from relight.diffusion.relighter import DiffusionRelighter, load_diffusion_relighter
+from relight.interface import register_relighter
 
 # Importing this package makes the model available as get_relighter("diffusion").
 register_relighter("diffusion", load_diffusion_relighter)

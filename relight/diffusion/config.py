@@ -106,7 +106,7 @@ class RelightConfig:
         return d
 
     @staticmethod
-    def from_dict(d: dict) -> "RelightConfig":
+    def from_dict(d: dict) -> RelightConfig:
         d = dict(d)
         # Checkpoints written before these switches existed used neither.
         d.setdefault("photo_concat", False)

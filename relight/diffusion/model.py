@@ -47,8 +47,12 @@ WEIGHTS_NAME = "relight.safetensors"
 def make_train_scheduler() -> DDPMScheduler:
     """DDPM training noise schedule, v-prediction (SPEC section 4; SD 2.1's settings)."""
     return DDPMScheduler(
-        num_train_timesteps=1000, beta_schedule="scaled_linear", beta_start=0.00085, beta_end=0.012,
-        prediction_type="v_prediction", clip_sample=False,
+        num_train_timesteps=1000,
+        beta_schedule="scaled_linear",
+        beta_start=0.00085,
+        beta_end=0.012,
+        prediction_type="v_prediction",
+        clip_sample=False,
     )
 
 
@@ -73,10 +77,15 @@ def _tiny_unet(cfg: RelightConfig) -> UNet2DConditionModel:
     down = ("DownBlock2D",) + ("CrossAttnDownBlock2D",) * (n - 1)
     up = ("CrossAttnUpBlock2D",) * (n - 1) + ("UpBlock2D",)
     return UNet2DConditionModel(
-        sample_size=cfg.resolution, in_channels=6 if cfg.photo_concat else 3, out_channels=3,
-        down_block_types=down, up_block_types=up,
-        block_out_channels=cfg.block_out_channels, layers_per_block=cfg.layers_per_block,
-        attention_head_dim=cfg.attention_head_dim, cross_attention_dim=cfg.cross_attention_dim,
+        sample_size=cfg.resolution,
+        in_channels=6 if cfg.photo_concat else 3,
+        out_channels=3,
+        down_block_types=down,
+        up_block_types=up,
+        block_out_channels=cfg.block_out_channels,
+        layers_per_block=cfg.layers_per_block,
+        attention_head_dim=cfg.attention_head_dim,
+        cross_attention_dim=cfg.cross_attention_dim,
         norm_num_groups=8,
     )
 
@@ -106,8 +115,10 @@ class RelightDiffusion(nn.Module):
         install_decoupled_attention(self.unet, config.num_light_tokens)
         install_decoupled_attention(self.controlnet, config.num_light_tokens)
         self.condition = ConditionEncoder(
-            out_channels=self.unet.config.block_out_channels[0], downsample=self.vae is not None,
-            widths=config.condition_widths, **ABLATIONS[config.ablation],
+            out_channels=self.unet.config.block_out_channels[0],
+            downsample=self.vae is not None,
+            widths=config.condition_widths,
+            **ABLATIONS[config.ablation],
         )
         self.light_tokens = LightTokenEncoder(
             token_dim=self.unet.config.cross_attention_dim, num_tokens=config.num_light_tokens
@@ -187,8 +198,11 @@ class RelightDiffusion(nn.Module):
         x_in = self.unet_input(x_t, base_x)
         down, mid = self.controlnet(x_in, t, encoder_hidden_states=states, controlnet_cond=feats, return_dict=False)
         return self.unet(
-            x_in, t, encoder_hidden_states=states,
-            down_block_additional_residuals=down, mid_block_additional_residual=mid,
+            x_in,
+            t,
+            encoder_hidden_states=states,
+            down_block_additional_residuals=down,
+            mid_block_additional_residual=mid,
         ).sample
 
     def forward(
@@ -253,7 +267,7 @@ class RelightDiffusion(nn.Module):
         (folder / CONFIG_NAME).write_text(json.dumps(self.config.to_dict(), indent=2))
 
     @classmethod
-    def from_pretrained(cls, folder: str | os.PathLike) -> "RelightDiffusion":
+    def from_pretrained(cls, folder: str | os.PathLike) -> RelightDiffusion:
         """Rebuild from a folder written by ``save_pretrained``: the architecture comes
         from the config, then every weight is loaded strictly (a missing or unexpected
         key is an error, never a silent warning)."""
@@ -265,8 +279,9 @@ class RelightDiffusion(nn.Module):
         missing, unexpected = model.load_state_dict(load_file(str(folder / WEIGHTS_NAME)), strict=False)
         missing = [k for k in missing if not model._is_frozen_key(k)]
         if missing or unexpected:
-            raise RuntimeError(f"{folder}: checkpoint does not match the model; missing {missing[:5]}, "
-                               f"unexpected {unexpected[:5]}")
+            raise RuntimeError(
+                f"{folder}: checkpoint does not match the model; missing {missing[:5]}, unexpected {unexpected[:5]}"
+            )
         return model
 
     def _is_frozen_key(self, key: str) -> bool:

@@ -29,8 +29,13 @@ class DiffusionRelighter(Relighter):
     def _relight(self, photo, camera, lights, *, generator=None):
         outs = [
             self.pipeline(
-                photo[b].float(), lights[b].float(), camera[b].float(), num_inference_steps=self.steps,
-                num_samples=self.num_samples, generator=generator, progress=False,
+                photo[b].float(),
+                lights[b].float(),
+                camera[b].float(),
+                num_inference_steps=self.steps,
+                num_samples=self.num_samples,
+                generator=generator,
+                progress=False,
             )
             for b in range(photo.shape[0])
         ]

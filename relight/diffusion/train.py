@@ -147,10 +147,16 @@ def main(cfg: TrainConfig) -> Path:
         model = RelightDiffusion.from_pretrained(ckpt / "model")
     else:
         channels = tuple(int(c) for c in cfg.block_out_channels.split(","))
-        model = RelightDiffusion(RelightConfig(
-            preset=cfg.preset, sd21_path=cfg.sd21_path or None, resolution=cfg.resolution,
-            ablation=cfg.ablation, block_out_channels=channels, base=cfg.base,
-        ))
+        model = RelightDiffusion(
+            RelightConfig(
+                preset=cfg.preset,
+                sd21_path=cfg.sd21_path or None,
+                resolution=cfg.resolution,
+                ablation=cfg.ablation,
+                block_out_channels=channels,
+                base=cfg.base,
+            )
+        )
     optimizer = torch.optim.AdamW(_trainable(model), lr=cfg.lr)
     step, history, state = 0, [], {}
     if (ckpt / "state.pt").is_file():
@@ -163,7 +169,9 @@ def main(cfg: TrainConfig) -> Path:
     # Items past the resumed step come next: the loader starts at the step's offset.
     loader = DataLoader(
         torch.utils.data.Subset(data, range(step * cfg.groups_per_step, len(data))),
-        batch_size=cfg.groups_per_step, shuffle=False, num_workers=0,
+        batch_size=cfg.groups_per_step,
+        shuffle=False,
+        num_workers=0,
     )
     model, optimizer, loader = accel.prepare(model, optimizer, loader)
     ema, trained = None, _trainable(accel.unwrap_model(model))

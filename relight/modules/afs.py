@@ -21,13 +21,9 @@ class AttentionFeatureSelection(nn.Module):
 
     def __init__(self, in_channels: list[int], channels: int, reduction: int = 4):
         super().__init__()
-        self.proj = nn.ModuleList(
-            [nn.Identity() if c == channels else nn.Conv2d(c, channels, 1) for c in in_channels]
-        )
+        self.proj = nn.ModuleList([nn.Identity() if c == channels else nn.Conv2d(c, channels, 1) for c in in_channels])
         hidden = max(channels // reduction, 8)
-        self.mlp = nn.Sequential(
-            nn.Linear(channels, hidden), nn.SiLU(), nn.Linear(hidden, channels * len(in_channels))
-        )
+        self.mlp = nn.Sequential(nn.Linear(channels, hidden), nn.SiLU(), nn.Linear(hidden, channels * len(in_channels)))
         self.num_sources = len(in_channels)
         self.channels = channels
 

@@ -22,9 +22,12 @@ class LightTokenEncoder(ModelMixin, ConfigMixin):
     def __init__(self, token_dim: int = 64, num_tokens: int = 4, width: int = 32, pool: int = 4):
         super().__init__()
         self.cnn = nn.Sequential(
-            nn.Conv2d(9, width, 3, stride=2, padding=1), nn.SiLU(),
-            nn.Conv2d(width, width * 2, 3, stride=2, padding=1), nn.SiLU(),
-            nn.Conv2d(width * 2, width * 2, 3, stride=2, padding=1), nn.SiLU(),
+            nn.Conv2d(9, width, 3, stride=2, padding=1),
+            nn.SiLU(),
+            nn.Conv2d(width, width * 2, 3, stride=2, padding=1),
+            nn.SiLU(),
+            nn.Conv2d(width * 2, width * 2, 3, stride=2, padding=1),
+            nn.SiLU(),
             nn.AdaptiveAvgPool2d(pool),
         )
         self.mlp = nn.Sequential(

@@ -59,11 +59,24 @@ def test_refine_maps_lowers_loss_and_backends_agree(synthetic_capture):
     maps, images, light, camera = synthetic_capture(views=4, seed=3)
     from materials.types import Material
 
-    start = Material(torch.full_like(maps[0], 0.5), torch.nn.functional.normalize(maps[1] + 0.3, dim=1),
-                     torch.full_like(maps[2], 0.5), torch.full_like(maps[3], 0.1))
+    start = Material(
+        torch.full_like(maps[0], 0.5),
+        torch.nn.functional.normalize(maps[1] + 0.3, dim=1),
+        torch.full_like(maps[2], 0.5),
+        torch.full_like(maps[3], 0.1),
+    )
     warp = refine_maps(start, images, light, camera, steps=30, lr=5e-2, progress=False)
-    ref = refine_maps(start, images, light, camera, steps=5, lr=5e-2, window=100, progress=False,
-                      render_loss_fn=kernels.reference.rendering_loss)
+    ref = refine_maps(
+        start,
+        images,
+        light,
+        camera,
+        steps=5,
+        lr=5e-2,
+        window=100,
+        progress=False,
+        render_loss_fn=kernels.reference.rendering_loss,
+    )
     for a, b in zip(warp.history[:5], ref.history):
         assert a == pytest.approx(b, rel=BACKEND_RTOL)
     assert _loss(warp.material, images, light, camera) < 0.7 * warp.history[0]

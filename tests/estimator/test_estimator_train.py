@@ -30,8 +30,16 @@ MEDIAN_TOLERANCE = 0.005
 
 def _tiny_train_config(tmp_path, **kw) -> TrainConfig:
     base = dict(
-        steps=4, batch_size=2, size=32, max_views=4, ckpt_dir=str(tmp_path / "ckpt"), out_dir=str(tmp_path / "out"),
-        ckpt_every=2, log_every=2, progress=False, model=TINY_TEST_CONFIG,
+        steps=4,
+        batch_size=2,
+        size=32,
+        max_views=4,
+        ckpt_dir=str(tmp_path / "ckpt"),
+        out_dir=str(tmp_path / "out"),
+        ckpt_every=2,
+        log_every=2,
+        progress=False,
+        model=TINY_TEST_CONFIG,
     )
     base.update(kw)
     return TrainConfig(**base)
@@ -68,7 +76,7 @@ def test_select_views_always_has_the_flash_view():
 def test_select_views_min_views():
     # min_views 1 is the default stream (resumed runs of older configs see the same views)
     for s in range(20):
-        g = lambda: torch.Generator().manual_seed(s)  # noqa: E731
+        g = lambda s=s: torch.Generator().manual_seed(s)  # noqa: E731
         assert select_views(8, 8, g()) == select_views(8, 8, g(), min_views=1)
     counts = {len(select_views(8, 8, torch.Generator().manual_seed(s), min_views=6)) for s in range(100)}
     assert counts == {6, 7, 8}
@@ -136,8 +144,21 @@ def test_resume_refuses_a_different_architecture(tmp_path):
 
 
 def test_parse_args_builds_the_dataclass():
-    cfg = parse_args(["--steps", "7", "--size", "48", "--no-resume", "--num-threads", "1",
-                      "--model.base-channels", "8", "--model.channel-mults", "1,2,4"])
+    cfg = parse_args(
+        [
+            "--steps",
+            "7",
+            "--size",
+            "48",
+            "--no-resume",
+            "--num-threads",
+            "1",
+            "--model.base-channels",
+            "8",
+            "--model.channel-mults",
+            "1,2,4",
+        ]
+    )
     assert cfg.steps == 7 and cfg.size == 48 and cfg.resume is False and cfg.num_threads == 1
     assert cfg.model.base_channels == 8 and cfg.model.channel_mults == (1, 2, 4)
     assert cfg.source_size == 96
@@ -225,6 +246,7 @@ def test_normal_mse_does_not_settle_on_the_flat_median():
     """Why ``normal_loss="mse"``: for sparse relief (here 80% flat pixels, 20% tilted by 0.3)
     and no per-pixel evidence, the L1-optimal guess is the median (flat) and the
     MSE-optimal one the mean (0.06), which is what the evaluation's normal MSE rewards."""
+
     def unit(slope_x: torch.Tensor) -> torch.Tensor:  # [P] x-slopes -> [1, 3, 1, P] unit normals
         normal = torch.stack([slope_x, torch.zeros_like(slope_x), torch.ones_like(slope_x)])
         return F.normalize(normal[None, :, None], dim=1)

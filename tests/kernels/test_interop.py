@@ -175,8 +175,9 @@ def _everything(b: int, render_inputs, make_maps):
     offs = torch.tensor([[0.4, -0.6]] * b, requires_grad=True)
     shifted = kernels.translate(feats, offs)
     results["translate"] = shifted.detach()
-    results["translate.grads"] = torch.cat([g.flatten() for g in torch.autograd.grad(shifted.square().sum(),
-                                                                                    [feats, offs])])
+    results["translate.grads"] = torch.cat(
+        [g.flatten() for g in torch.autograd.grad(shifted.square().sum(), [feats, offs])]
+    )
     x = out.detach().requires_grad_()
     for name in ("log_l1_loss", "mse_loss"):
         value = getattr(kernels, name)(x, target)
@@ -187,8 +188,7 @@ def _everything(b: int, render_inputs, make_maps):
 
 @pytest.mark.parametrize("b", [1, 3])
 @pytest.mark.parametrize("threads", [None, "3"])
-def test_thread_count_does_not_change_results(threads, b, monkeypatch, render_inputs, make_maps,
-                                              assert_close_to_max):
+def test_thread_count_does_not_change_results(threads, b, monkeypatch, render_inputs, make_maps, assert_close_to_max):
     """One thread vs the default (all cores) and vs 3: forward values and map gradients are
     bit-identical (chunks write disjoint outputs). Position gradients are too when the
     batch is split; a row split (B=1) sums them in another order."""

@@ -54,8 +54,9 @@ def loss_scene(make_maps, make_positions):
 @pytest.mark.parametrize("positions_grad", [True, False], ids=["adjoint", "maps-only"])
 @pytest.mark.parametrize("b", [1, 3])
 @pytest.mark.parametrize("preset", ["dgrsise", "materialgan"])
-def test_rendering_loss_matches_reference(preset, b, positions_grad, dtype, device, loss_scene,
-                                          assert_close_to_max, assert_grad_alive):
+def test_rendering_loss_matches_reference(
+    preset, b, positions_grad, dtype, device, loss_scene, assert_close_to_max, assert_grad_alive
+):
     maps, light, camera, target = loss_scene(b, 7, 13, 4, dtype=dtype, device=device)
     if not positions_grad:
         light, camera = light.detach(), camera.detach()
@@ -181,7 +182,11 @@ def test_map_rendering_loss_samples_lights_deterministically(make_maps):
 @pytest.mark.parametrize("plane_size", [4.0, 17.0])
 def test_sample_loss_lights_geometry(plane_size):
     light, camera = kernels.sample_loss_lights(
-        64, plane_size=plane_size, n_diffuse=3, n_specular=6, generator=torch.Generator().manual_seed(0),
+        64,
+        plane_size=plane_size,
+        n_diffuse=3,
+        n_specular=6,
+        generator=torch.Generator().manual_seed(0),
         dtype=torch.float64,
     )
     assert light.shape == camera.shape == (64, 9, 3) and light.dtype == torch.float64
@@ -189,6 +194,7 @@ def test_sample_loss_lights_geometry(plane_size):
     # Specular configurations: the mirror point of light and camera lies on the plane.
     m = kernels.mirror_point(camera[:, 3:], light[:, 3:])
     assert float(m.abs().max()) <= 0.75 * plane_size / 2 + 1e-9  # centres drawn in 75% of the plane
-    again = kernels.sample_loss_lights(64, plane_size=plane_size, generator=torch.Generator().manual_seed(0),
-                                       dtype=torch.float64)
+    again = kernels.sample_loss_lights(
+        64, plane_size=plane_size, generator=torch.Generator().manual_seed(0), dtype=torch.float64
+    )
     torch.testing.assert_close(again[0], light, rtol=0, atol=0)

@@ -86,8 +86,9 @@ def test_finite_and_non_negative_at_grazing_angles_and_extreme_roughness(preset,
 
 def test_light_below_the_surface_gives_zero():
     maps = _probe_maps(0.5, f0=0.5, diffuse=0.8)
-    out = kernels.render(*maps, torch.tensor([[0.0, 0.0, -4.0]], dtype=torch.float64),
-                         torch.tensor([0.0, 0.0, 4.0], dtype=torch.float64))
+    out = kernels.render(
+        *maps, torch.tensor([[0.0, 0.0, -4.0]], dtype=torch.float64), torch.tensor([0.0, 0.0, 4.0], dtype=torch.float64)
+    )
     assert float(out.abs().max()) == 0.0
 
 
@@ -172,8 +173,9 @@ def test_normal_incidence_gives_f0(roughness, f0, diffuse):
 def test_ggx_ndf_is_normalised(roughness):
     """int D(h) (n.h) dw_h = 1. The kernel is probed with light = camera = h on the
     hemisphere (F0 = 1 makes F = 1), and D is recovered by dividing out the visibility."""
-    s = torch.cat([torch.zeros(1, dtype=torch.float64),
-                   torch.logspace(-10, math.log10(1 - 1e-6), 4000, dtype=torch.float64)])
+    s = torch.cat(
+        [torch.zeros(1, dtype=torch.float64), torch.logspace(-10, math.log10(1 - 1e-6), 4000, dtype=torch.float64)]
+    )
     h = torch.stack([s.sqrt(), torch.zeros_like(s), (1 - s).sqrt()], -1)  # s = sin^2(theta_h)
     out = kernels.render(*_probe_maps(roughness), h * FAR, h * FAR, intensity=1.0, inverse_square=False)
     c, k = h[:, 2], roughness**2 / 2
@@ -207,8 +209,15 @@ def test_white_specular_albedo_at_most_one(roughness, view_deg):
     # The kernel's normal is (0, 0, 1) / sqrt(1 + NORMALIZE_EPS); give the reference the same.
     n = torch.tensor([0.0, 0.0, 1.0 / math.sqrt(1.0 + NORMALIZE_EPS)], dtype=torch.float64)[:, None, None]
     ones, zeros = torch.ones(3, 1, 1, dtype=torch.float64), torch.zeros(3, 1, 1, dtype=torch.float64)
-    f_cos = reference.cook_torrance(n, dirs.T[:, None], view[:, None, None], zeros, ones,
-                                    torch.full((1, 1, 1), roughness, dtype=torch.float64), 0.0993)
+    f_cos = reference.cook_torrance(
+        n,
+        dirs.T[:, None],
+        view[:, None, None],
+        zeros,
+        ones,
+        torch.full((1, 1, 1), roughness, dtype=torch.float64),
+        0.0993,
+    )
     albedo_ref = float((f_cos[0, 0] * weights).sum())
     assert math.isclose(albedo, albedo_ref, rel_tol=PHYS_RTOL_F64), (albedo, albedo_ref)
     assert 0.2 < albedo <= 1.0 + ENERGY_QUAD_TOL, albedo
@@ -217,7 +226,8 @@ def test_white_specular_albedo_at_most_one(roughness, view_deg):
 # --------------------------------------------------------------------------- batching, determinism
 def _grads(maps, light, camera, cot):
     inputs = [m.detach().clone().requires_grad_() for m in maps] + [
-        light.detach().clone().requires_grad_(), camera.detach().clone().requires_grad_()
+        light.detach().clone().requires_grad_(),
+        camera.detach().clone().requires_grad_(),
     ]
     out = kernels.render(*inputs)
     return out.detach(), torch.autograd.grad(out, inputs, cot)

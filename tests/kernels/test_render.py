@@ -42,10 +42,12 @@ def scene(make_maps, make_positions):
 
     def build(b, h, w, k, *, dtype=torch.float32, device="cpu", plane_size=4.0, requires_grad=False):
         maps = make_maps(b, h, w, dtype=dtype, device=device, requires_grad=requires_grad)
-        light = make_positions((b, k), plane_size=plane_size, dtype=dtype, device=device, seed=2,
-                               requires_grad=requires_grad)
-        camera = make_positions((b, k), plane_size=plane_size, dtype=dtype, device=device, seed=3,
-                                requires_grad=requires_grad)
+        light = make_positions(
+            (b, k), plane_size=plane_size, dtype=dtype, device=device, seed=2, requires_grad=requires_grad
+        )
+        camera = make_positions(
+            (b, k), plane_size=plane_size, dtype=dtype, device=device, seed=3, requires_grad=requires_grad
+        )
         return maps, light, camera
 
     return build
@@ -113,8 +115,9 @@ def test_thread_split_paths_are_exercised():
 
 @pytest.mark.parametrize("light_shape", ["K3", "BK3"])
 @pytest.mark.parametrize("camera_shape", ["3", "13", "K3", "BK3"])
-def test_forward_broadcast_positions(light_shape, camera_shape, dtype, device, scene, make_positions,
-                                    assert_close_to_max):
+def test_forward_broadcast_positions(
+    light_shape, camera_shape, dtype, device, scene, make_positions, assert_close_to_max
+):
     b, k = 3, 4
     maps, light_full, _ = scene(b, 5, 6, k, dtype=dtype, device=device)
     light = light_full[0] if light_shape == "K3" else light_full
@@ -189,8 +192,7 @@ def test_backward_paths_agree_on_map_gradients(make_maps, make_positions):
     camera = make_positions((4,), dtype=torch.float64, seed=23)
     cot = torch.randn(2, 4, 3, 9, 11, generator=torch.Generator().manual_seed(24), dtype=torch.float64)
     fast = torch.autograd.grad(kernels.render(*maps, light, camera), maps, cot)
-    generated = torch.autograd.grad(
-        kernels.render(*maps, light.requires_grad_(), camera.requires_grad_()), maps, cot)
+    generated = torch.autograd.grad(kernels.render(*maps, light.requires_grad_(), camera.requires_grad_()), maps, cot)
     for name, a, b in zip(NAMES, fast, generated):
         torch.testing.assert_close(a, b, rtol=PATHS_RTOL_F64, atol=0, msg=name)
 
@@ -236,7 +238,8 @@ def test_pixel_layout_row0_is_plus_y():
     n = torch.zeros(1, 3, 8, 8)
     n[:, 2] = 1
     r, s = torch.full((1, 1, 8, 8), 0.9), torch.zeros(1, 3, 8, 8)
-    img = kernels.render(d, n, r, s, torch.tensor([[-1.3, 1.3, 1.0]]), torch.tensor([0.0, 0.0, 4.0]),
-                         inverse_square=True)[0, 0, 0]
+    img = kernels.render(
+        d, n, r, s, torch.tensor([[-1.3, 1.3, 1.0]]), torch.tensor([0.0, 0.0, 4.0]), inverse_square=True
+    )[0, 0, 0]
     i, j = divmod(int(img.argmax()), 8)
     assert (i, j) == (1, 1)  # pixel centre (-1.25, 1.25) is nearest to (-1.3, 1.3)

@@ -37,8 +37,9 @@ def test_inverse_tonemap_round_trip():
     torch.testing.assert_close(kernels.tonemap(kernels.inverse_tonemap(y)), y, rtol=0, atol=ROUNDTRIP_ATOL_F64)
 
 
-@pytest.mark.parametrize("linear,encoded", [(0.0, 0.0), (0.0031308, 0.0404500), (0.18, 0.4613561), (0.5, 0.7353570),
-                                            (1.0, 1.0)])
+@pytest.mark.parametrize(
+    "linear,encoded", [(0.0, 0.0), (0.0031308, 0.0404500), (0.18, 0.4613561), (0.5, 0.7353570), (1.0, 1.0)]
+)
 def test_srgb_known_values(linear, encoded):
     got = float(kernels.srgb_encode(torch.tensor(linear, dtype=torch.float64)))
     assert abs(got - encoded) <= SRGB_TABLE_ATOL

@@ -89,7 +89,7 @@ def test_integer_offsets_are_a_clamped_roll(dx, dy):
     rolled = torch.roll(feats, (dy, dx), dims=(2, 3))
     torch.testing.assert_close(out[:, :, rows, cols], rolled[:, :, rows, cols], rtol=0, atol=0)
     if 0 < dx < w:  # the first dx columns repeat the (shifted) column 0
-        torch.testing.assert_close(out[..., :dx], out[..., dx:dx + 1].expand_as(out[..., :dx]), rtol=0, atol=0)
+        torch.testing.assert_close(out[..., :dx], out[..., dx : dx + 1].expand_as(out[..., :dx]), rtol=0, atol=0)
 
 
 def test_zero_offset_is_identity(dtype):
@@ -109,8 +109,9 @@ def test_half_pixel_offset_averages_neighbours():
 def test_mirror_point_equal_heights_is_midpoint():
     cam = torch.tensor([1.0, 1.0, 5.0], dtype=torch.float64)
     light = torch.tensor([3.0, -1.0, 5.0], dtype=torch.float64)
-    torch.testing.assert_close(kernels.mirror_point(cam, light), torch.tensor([2.0, 0.0], dtype=torch.float64),
-                               rtol=0, atol=GEOM_ATOL)
+    torch.testing.assert_close(
+        kernels.mirror_point(cam, light), torch.tensor([2.0, 0.0], dtype=torch.float64), rtol=0, atol=GEOM_ATOL
+    )
 
 
 def test_mirror_point_is_where_reflection_angles_match():
@@ -137,8 +138,12 @@ def test_highlight_offsets_x_right_and_y_up(plane_size, size):
 def test_highlight_offsets_are_relative_to_the_camera():
     cam = torch.tensor([1.0, -1.0, 4.0], dtype=torch.float64)
     light = torch.tensor([1.0, -1.0, 6.0], dtype=torch.float64)  # straight above the camera
-    torch.testing.assert_close(kernels.highlight_offsets(cam, light, 4.0, (16, 16)),
-                               torch.zeros(2, dtype=torch.float64), rtol=0, atol=GEOM_ATOL)
+    torch.testing.assert_close(
+        kernels.highlight_offsets(cam, light, 4.0, (16, 16)),
+        torch.zeros(2, dtype=torch.float64),
+        rtol=0,
+        atol=GEOM_ATOL,
+    )
 
 
 def test_translated_highlight_lands_where_the_renderer_puts_it():

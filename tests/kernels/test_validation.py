@@ -126,7 +126,9 @@ def test_position_dtype_must_match_maps(good):
 
 # --------------------------------------------------------------------------- presets, overrides
 def test_unknown_preset(good):
-    with pytest.raises(ValueError, match=r"unknown preset 'mitsuba'; known: \['deschaintre', 'dgrsise', 'materialgan'\]"):
+    with pytest.raises(
+        ValueError, match=r"unknown preset 'mitsuba'; known: \['deschaintre', 'dgrsise', 'materialgan'\]"
+    ):
         _render(good, preset="mitsuba")
 
 

@@ -48,7 +48,7 @@ def test_eval_set_is_fixed():
     light, camera = eval_lights()
     assert light.shape == (8, 3) and len(EVAL_LIGHTS) == 7
     assert torch.equal(light[0], camera[0])
-    assert set(EVAL_SEEDS).isdisjoint(range(0, 2_000_000)) and max(TRAIN_SEEDS) < min(EVAL_SEEDS)
+    assert set(EVAL_SEEDS).isdisjoint(range(2_000_000)) and max(TRAIN_SEEDS) < min(EVAL_SEEDS)
 
 
 def test_deterministic_items():

@@ -113,7 +113,9 @@ def write_raw_png(path: Path, h: int, w: int, bit_depth: int, colour_type: int, 
     row = b"\x00" + bytes(w * channels * bit_depth // 8)
     ihdr = struct.pack(">IIBBBBB", w, h, bit_depth, colour_type, 0, 0, 0)
     data = zlib.compress(row * h)
-    path.write_bytes(b"\x89PNG\r\n\x1a\n" + png_chunk(b"IHDR", ihdr) + png_chunk(b"IDAT", data) + png_chunk(b"IEND", b""))
+    path.write_bytes(
+        b"\x89PNG\r\n\x1a\n" + png_chunk(b"IHDR", ihdr) + png_chunk(b"IDAT", data) + png_chunk(b"IEND", b"")
+    )
 
 
 def write_exr_channels(path: Path, planes: dict[str, np.ndarray]) -> None:
@@ -226,10 +228,9 @@ def test_exr_write_refuses_non_finite_and_leaves_target_untouched(tmp_path):
 def test_atomic_file_keeps_old_content_when_writer_fails(tmp_path):
     path = tmp_path / "x.txt"
     path.write_text("old")
-    with pytest.raises(RuntimeError):
-        with atomic_file(path) as tmp:
-            tmp.write_text("half")
-            raise RuntimeError("crash mid-write")
+    with pytest.raises(RuntimeError), atomic_file(path) as tmp:
+        tmp.write_text("half")
+        raise RuntimeError("crash mid-write")
     assert path.read_text() == "old"
     assert [p.name for p in tmp_path.iterdir()] == ["x.txt"]
 
@@ -335,8 +336,7 @@ def test_material_folder_round_trip_exact(tmp_path):
     write_material(folder, material, plane_size=4.0, provenance={"seed": 0, "family": "test"})
     names = sorted(p.name for p in folder.iterdir())
     assert names == sorted(
-        [f"{m}.{e}" for m in ("diffuse", "normal", "roughness", "specular") for e in ("exr", "png")]
-        + ["material.json"]
+        [f"{m}.{e}" for m in ("diffuse", "normal", "roughness", "specular") for e in ("exr", "png")] + ["material.json"]
     )
     back, meta = read_material(folder)
     for name, t in material.maps().items():
@@ -618,7 +618,9 @@ def test_matsynth_diffuse_specular_preferred_and_resized(tmp_path):
     )
     got, meta = read_matsynth(folder)
     assert meta["workflow"] == "diffuse-specular"
-    assert (srgb_encode(got.diffuse) - srgb_encode(torch.from_numpy(diffuse_linear).permute(2, 0, 1))).abs().max() <= ENCODED_TOL
+    assert (
+        srgb_encode(got.diffuse) - srgb_encode(torch.from_numpy(diffuse_linear).permute(2, 0, 1))
+    ).abs().max() <= ENCODED_TOL
     assert got.specular.shape == (3, SIZE, SIZE)
     assert torch.allclose(got.specular, srgb_decode(torch.tensor(round(0.3 * 255) / 255)).expand(3, SIZE, SIZE))
     assert got.roughness.shape == (1, SIZE, SIZE)

@@ -173,7 +173,7 @@ def test_value_ranges_per_family(family):
             m = generate(seed, 96, family, glossy=glossy)
             r_lo, r_hi = ROUGHNESS_RANGE
             assert r_lo - 1e-6 <= float(m.roughness.min()) and float(m.roughness.max()) <= r_hi + 1e-6
-            assert 0.0 <= float(m.specular.min()) and float(m.specular.max()) <= 1.0
+            assert float(m.specular.min()) >= 0.0 and float(m.specular.max()) <= 1.0
             if family == "metal":
                 assert float(m.diffuse.max()) <= METAL_DIFFUSE_MAX + 1e-6
                 assert float(m.specular.min()) >= 0.5 - 1e-6  # metal F0 in [0.5, 1]

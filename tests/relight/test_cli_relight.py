@@ -6,8 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from materials.io import write_exr, write_png
 from matcap.cli import main
+from materials.io import write_exr, write_png
 
 
 @pytest.fixture()
@@ -19,12 +19,28 @@ def photo_png(tmp_path):
 
 def test_generate_writes_one_pair_per_light(tmp_path, photo_png, tiny_checkpoint):
     out = tmp_path / "g"
-    argv = ["generate", str(photo_png), "--model", "bieron", "--checkpoint", str(tiny_checkpoint),
-            "--light", "1,1,4", "--light=-1,0,5", "--out", str(out)]
+    argv = [
+        "generate",
+        str(photo_png),
+        "--model",
+        "bieron",
+        "--checkpoint",
+        str(tiny_checkpoint),
+        "--light",
+        "1,1,4",
+        "--light=-1,0,5",
+        "--out",
+        str(out),
+    ]
     assert main(argv) == 0
     info = json.loads((out / "relit.json").read_text())
     assert len(info["lights"]) == 2
-    assert sorted(p.name for p in out.glob("relit_*")) == ["relit_00.exr", "relit_00.png", "relit_01.exr", "relit_01.png"]
+    assert sorted(p.name for p in out.glob("relit_*")) == [
+        "relit_00.exr",
+        "relit_00.png",
+        "relit_01.exr",
+        "relit_01.png",
+    ]
 
 
 def test_generate_default_lights_from_exr(tmp_path):
@@ -62,8 +78,20 @@ def test_generate_rejects_grey_and_unknown_files(tmp_path, capsys):
 
 def test_eval_relight_cli(tmp_path, tiny_checkpoint, capsys):
     out = tmp_path / "e"
-    argv = ["eval", "relight", "--count", "1", "--size", "16", "--methods", "input,lambertian,bieron",
-            "--checkpoint", f"bieron={tiny_checkpoint}", "--out", str(out)]
+    argv = [
+        "eval",
+        "relight",
+        "--count",
+        "1",
+        "--size",
+        "16",
+        "--methods",
+        "input,lambertian,bieron",
+        "--checkpoint",
+        f"bieron={tiny_checkpoint}",
+        "--out",
+        str(out),
+    ]
     assert main(argv) == 0
     rows = json.loads((out / "relight_eval.json").read_text())["rows"]
     assert [r["method"] for r in rows] == ["input", "lambertian", "bieron"]

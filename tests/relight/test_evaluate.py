@@ -33,14 +33,19 @@ def test_flip_reads_channels_last():
     img[:, 0] = 1.0
     swapped = img[:, [1, 0, 2]]
     ours = float(metrics.flip(swapped, img)[0])
-    hwc = lambda t: np.ascontiguousarray(t[0].permute(1, 2, 0).numpy())
+
+    def hwc(t):
+        return np.ascontiguousarray(t[0].permute(1, 2, 0).numpy())
+
     direct = flip_evaluator.evaluate(hwc(img), hwc(swapped), "LDR", applyMagma=False)[1]
     assert ours == pytest.approx(direct) and ours > 0.3
 
 
 def test_table_has_one_row_per_method(tmp_path, tiny_checkpoint):
     cfg = EvalConfig(count=2, size=16, chunk=1)
-    methods = {n: get_relighter(n, tiny_checkpoint if n == "bieron" else None) for n in ("input", "lambertian", "bieron")}
+    methods = {
+        n: get_relighter(n, tiny_checkpoint if n == "bieron" else None) for n in ("input", "lambertian", "bieron")
+    }
     result = evaluate(methods, cfg)
     assert [r["method"] for r in result["rows"]] == ["input", "lambertian", "bieron"]
     for r in result["rows"]:

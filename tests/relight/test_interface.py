@@ -30,7 +30,10 @@ def _call(b: int = 2, k: int = 3, size: int = 16):
 
 
 def _all(tiny_checkpoint):
-    return {name: get_relighter(name, tiny_checkpoint if name == "bieron" else None) for name in ("input", "lambertian", "bieron")}
+    return {
+        name: get_relighter(name, tiny_checkpoint if name == "bieron" else None)
+        for name in ("input", "lambertian", "bieron")
+    }
 
 
 def test_every_relighter_answers_the_same_call(tiny_checkpoint):
@@ -74,8 +77,15 @@ def test_lambertian_with_falloff_matches_the_materialgan_preset():
     normal[:, 2] = 1
     light = torch.tensor([[0.0, 0.0, 30.0], [5.0, -3.0, 25.0]])
     camera = torch.tensor([0.0, 0.0, 30.0])
-    images = kernels.render(diffuse, normal, torch.ones(b, 1, size, size), torch.zeros(b, 3, size, size),
-                            light, camera, preset="materialgan")
+    images = kernels.render(
+        diffuse,
+        normal,
+        torch.ones(b, 1, size, size),
+        torch.zeros(b, 3, size, size),
+        light,
+        camera,
+        preset="materialgan",
+    )
     out = LambertianRelighter("materialgan").relight(images[:, 0], camera[None], light[None, 1:])
     torch.testing.assert_close(out, images[:, 1:], rtol=1e-3, atol=LAMBERTIAN_ATOL)
 
@@ -97,7 +107,9 @@ def test_lambertian_with_falloff_matches_the_materialgan_preset():
 )
 def test_bad_input_names_the_argument(change, message):
     args = change(*_call())
-    with pytest.raises(ValueError, match=message.replace("[", r"\[").replace("]", r"\]").replace("(", r"\(").replace(")", r"\)")):
+    with pytest.raises(
+        ValueError, match=message.replace("[", r"\[").replace("]", r"\]").replace("(", r"\(").replace(")", r"\)")
+    ):
         LambertianRelighter().relight(*args)
 
 

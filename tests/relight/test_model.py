@@ -81,7 +81,9 @@ def test_save_load_round_trip(tmp_path, group_batch):
     assert tuple(back.config.channel_mults) == (1, 2)
     b = group_batch
     with torch.no_grad():
-        torch.testing.assert_close(back(b["photo"], b["camera"], b["lights"]), net(b["photo"], b["camera"], b["lights"]))
+        torch.testing.assert_close(
+            back(b["photo"], b["camera"], b["lights"]), net(b["photo"], b["camera"], b["lights"])
+        )
 
 
 @pytest.mark.parametrize("residual", ["none", "lambertian"])

@@ -32,8 +32,8 @@ def test_default_bieron_loads_the_shipped_weights():
 
 
 def test_cli_generate_with_the_shipped_model(tmp_path):
-    from materials.io import write_png
     from matcap.cli import main
+    from materials.io import write_png
 
     write_png(tmp_path / "p.png", np.full((16, 16, 3), 0.5, dtype=np.float32))
     assert main(["generate", str(tmp_path / "p.png"), "--out", str(tmp_path / "g")]) == 0

@@ -12,8 +12,16 @@ from relight.bieron.train import TrainConfig, main, parse_args
 
 def _cfg(tmp_path, steps):
     return TrainConfig(
-        ckpt_dir=str(tmp_path / "ckpt"), steps=steps, size=16, batch=2, targets_per_group=2,
-        base_channels=8, channel_mults=(1, 2), norm_groups=4, progress=False, warmup_steps=2,
+        ckpt_dir=str(tmp_path / "ckpt"),
+        steps=steps,
+        size=16,
+        batch=2,
+        targets_per_group=2,
+        base_channels=8,
+        channel_mults=(1, 2),
+        norm_groups=4,
+        progress=False,
+        warmup_steps=2,
     )
 
 

@@ -5,8 +5,12 @@ from relight.diffusion import RelightConfig, RelightDiffusion
 
 #: A real but tiny architecture: every code path of the tiny preset, at 16x16.
 TINY = dict(
-    resolution=16, block_out_channels=(8, 16), cross_attention_dim=16, attention_head_dim=4,
-    num_light_tokens=2, condition_widths=(4, 4, 4, 4, 8, 8),
+    resolution=16,
+    block_out_channels=(8, 16),
+    cross_attention_dim=16,
+    attention_head_dim=4,
+    num_light_tokens=2,
+    condition_widths=(4, 4, 4, 4, 8, 8),
 )
 
 

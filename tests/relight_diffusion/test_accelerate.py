@@ -14,10 +14,30 @@ def test_two_process_accelerate_smoke(tmp_path):
     # --multi_gpu with ACCELERATE_USE_CPU=1 runs real DDP over gloo on the CPU;
     # `--cpu --num_processes 2` would silently run one process.
     cmd = [
-        sys.executable, "-m", "accelerate.commands.launch", "--multi_gpu", "--num_processes", "2",
-        "--num_machines", "1", "--mixed_precision", "no", "--dynamo_backend", "no",
-        "-m", "relight.diffusion.train", "--ckpt-dir", str(tmp_path), "--steps", "2",
-        "--resolution", "16", "--block-out-channels", "8,16", "--ckpt-every", "100",
+        sys.executable,
+        "-m",
+        "accelerate.commands.launch",
+        "--multi_gpu",
+        "--num_processes",
+        "2",
+        "--num_machines",
+        "1",
+        "--mixed_precision",
+        "no",
+        "--dynamo_backend",
+        "no",
+        "-m",
+        "relight.diffusion.train",
+        "--ckpt-dir",
+        str(tmp_path),
+        "--steps",
+        "2",
+        "--resolution",
+        "16",
+        "--block-out-channels",
+        "8,16",
+        "--ckpt-every",
+        "100",
     ]
     result = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stderr[-3000:]

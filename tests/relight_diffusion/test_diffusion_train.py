@@ -25,7 +25,13 @@ def test_cosine_holds_then_falls_to_zero_at_the_last_step():
 
 
 @pytest.mark.parametrize(
-    "kwargs", [dict(lr_schedule="linear"), dict(lr_schedule="cosine", lr_decay_from=5), dict(ema_decay=1.0), dict(terminal_fraction=1.5)]
+    "kwargs",
+    [
+        dict(lr_schedule="linear"),
+        dict(lr_schedule="cosine", lr_decay_from=5),
+        dict(ema_decay=1.0),
+        dict(terminal_fraction=1.5),
+    ],
 )
 def test_bad_schedule_is_refused_before_training(kwargs, tmp_path):
     with pytest.raises(ValueError, match="lr_schedule|lr_decay_from|ema_decay|terminal_fraction"):
@@ -43,8 +49,14 @@ def test_training_applies_the_schedule_each_update(tmp_path, monkeypatch):
 
     monkeypatch.setattr(torch.optim.AdamW, "step", spy)
     cfg = TrainConfig(
-        ckpt_dir=str(tmp_path), steps=4, resolution=16, block_out_channels="8,16", ckpt_every=100,
-        lr=1e-3, lr_schedule="cosine", lr_decay_from=2,
+        ckpt_dir=str(tmp_path),
+        steps=4,
+        resolution=16,
+        block_out_channels="8,16",
+        ckpt_every=100,
+        lr=1e-3,
+        lr_schedule="cosine",
+        lr_decay_from=2,
     )
     train.main(cfg)
     assert seen == pytest.approx([learning_rate(cfg, s) for s in range(4)])

@@ -38,12 +38,16 @@ def test_light_tokens_enter_once_value_projection_moves(tiny_model):
         _, s1, base_x = tiny_model.encode_condition(photo, photo, light, camera)
         _, s2, _ = tiny_model.encode_condition(photo, photo, other, camera)
         x_in = tiny_model.unet_input(x, base_x)
-        assert torch.equal(tiny_model.unet(x_in, t, encoder_hidden_states=s1).sample,
-                           tiny_model.unet(x_in, t, encoder_hidden_states=s2).sample)
+        assert torch.equal(
+            tiny_model.unet(x_in, t, encoder_hidden_states=s1).sample,
+            tiny_model.unet(x_in, t, encoder_hidden_states=s2).sample,
+        )
         for p in decoupled_processors(tiny_model.unet):
             torch.nn.init.normal_(p.to_v_ip.weight, std=0.5)
-        assert not torch.allclose(tiny_model.unet(x_in, t, encoder_hidden_states=s1).sample,
-                                  tiny_model.unet(x_in, t, encoder_hidden_states=s2).sample)
+        assert not torch.allclose(
+            tiny_model.unet(x_in, t, encoder_hidden_states=s1).sample,
+            tiny_model.unet(x_in, t, encoder_hidden_states=s2).sample,
+        )
 
 
 def test_save_load_round_trip(tiny_model, tmp_path):
@@ -84,8 +88,18 @@ def test_pipeline_deterministic_and_checked(tiny_model):
     photo = torch.rand(3, 16, 16)
     lights = torch.tensor([[1.0, 1.0, 4.0], [-2.0, 0.5, 6.0]])
     camera = torch.tensor([0.0, 0.0, 4.0])
-    run = lambda: pipe(photo, lights, camera, num_inference_steps=3, generator=torch.Generator().manual_seed(3),  # noqa: E731
-                       progress=False, num_samples=2)
+
+    def run():
+        return pipe(
+            photo,
+            lights,
+            camera,
+            num_inference_steps=3,
+            generator=torch.Generator().manual_seed(3),
+            progress=False,
+            num_samples=2,
+        )
+
     a, b = run(), run()
     assert a.shape == (2, 3, 16, 16) and torch.equal(a, b) and (a >= 0).all()
     with pytest.raises(ValueError, match="16x16"):
@@ -224,8 +238,8 @@ def test_sampling_options_reach_the_pipeline(tiny_model, tmp_path, capsys, pipel
 
     import numpy as np
 
-    from materials.io import write_exr
     from matcap.cli import main
+    from materials.io import write_exr
 
     calls = pipeline_calls
     tiny_model.save_pretrained(tmp_path / "m")
@@ -245,8 +259,21 @@ def test_sampling_options_reach_the_pipeline(tiny_model, tmp_path, capsys, pipel
 
     calls.clear()
     ev = ["eval", "relight", "--count", "1", "--size", "16", "--out"]
-    assert main([*ev, str(tmp_path / "e"), "--methods", "lambertian,diffusion",
-                 "--checkpoint", f"diffusion={tmp_path / 'm'}", "--steps", "2"]) == 0
+    assert (
+        main(
+            [
+                *ev,
+                str(tmp_path / "e"),
+                "--methods",
+                "lambertian,diffusion",
+                "--checkpoint",
+                f"diffusion={tmp_path / 'm'}",
+                "--steps",
+                "2",
+            ]
+        )
+        == 0
+    )
     assert calls and all(steps == 2 for steps, _ in calls)
     rows = {r["method"]: r for r in json.loads((tmp_path / "e" / "relight_eval.json").read_text())["rows"]}
     assert rows["diffusion"]["sampling_steps"] == 2 and "sampling_steps" not in rows["lambertian"]
@@ -265,14 +292,30 @@ def test_eval_compares_several_step_counts_in_one_run(tiny_model, tmp_path, caps
     from matcap.cli import main
 
     tiny_model.save_pretrained(tmp_path / "m")
-    ev = ["eval", "relight", "--count", "1", "--size", "16", "--methods", "lambertian,diffusion",
-          "--checkpoint", f"diffusion={tmp_path / 'm'}", "--out"]
+    ev = [
+        "eval",
+        "relight",
+        "--count",
+        "1",
+        "--size",
+        "16",
+        "--methods",
+        "lambertian,diffusion",
+        "--checkpoint",
+        f"diffusion={tmp_path / 'm'}",
+        "--out",
+    ]
     assert main([*ev, str(tmp_path / "e"), "--steps", "2,1", "--samples", "2"]) == 0
     calls = [steps for steps, _ in pipeline_calls]
     assert sorted(set(calls)) == [1, 2] and calls.count(1) == calls.count(2)
     rows = {r["method"]: r for r in json.loads((tmp_path / "e" / "relight_eval.json").read_text())["rows"]}
-    assert set(rows) == {"lambertian", "diffusion (2 steps)", "diffusion (2 steps) (mean of 2)",
-                         "diffusion (1 step)", "diffusion (1 step) (mean of 2)"}
+    assert set(rows) == {
+        "lambertian",
+        "diffusion (2 steps)",
+        "diffusion (2 steps) (mean of 2)",
+        "diffusion (1 step)",
+        "diffusion (1 step) (mean of 2)",
+    }
     assert rows["diffusion (2 steps)"]["sampling_steps"] == 2 and rows["diffusion (1 step)"]["sampling_steps"] == 1
     for bad, message in (("2,2", "repeats"), ("2,x", "comma-separated"), ("3,0", "at least 1")):
         assert main([*ev, str(tmp_path / "bad"), "--steps", bad]) == 2

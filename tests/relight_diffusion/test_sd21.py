@@ -41,23 +41,46 @@ def sd21_folder(tmp_path_factory):
     root = tmp_path_factory.mktemp("sd21-miniature")
     torch.manual_seed(0)
     vocab_size = _write_tokenizer(root / "tokenizer")
-    CLIPTextModel(CLIPTextConfig(
-        vocab_size=vocab_size, hidden_size=TEXT_DIM, intermediate_size=32, num_hidden_layers=1,
-        num_attention_heads=2, max_position_embeddings=77, projection_dim=TEXT_DIM,
-        bos_token_id=vocab_size - 2, eos_token_id=vocab_size - 1, pad_token_id=vocab_size - 1,
-    )).save_pretrained(root / "text_encoder")
+    CLIPTextModel(
+        CLIPTextConfig(
+            vocab_size=vocab_size,
+            hidden_size=TEXT_DIM,
+            intermediate_size=32,
+            num_hidden_layers=1,
+            num_attention_heads=2,
+            max_position_embeddings=77,
+            projection_dim=TEXT_DIM,
+            bos_token_id=vocab_size - 2,
+            eos_token_id=vocab_size - 1,
+            pad_token_id=vocab_size - 1,
+        )
+    ).save_pretrained(root / "text_encoder")
     # SD 2.1's UNet traits: 4 latent channels, linear projections in the transformers,
     # cross-attention at every level but the lowest-resolution one, v-prediction.
     UNet2DConditionModel(
-        sample_size=8, in_channels=4, out_channels=4, layers_per_block=1, block_out_channels=(8, 16),
-        down_block_types=("CrossAttnDownBlock2D", "DownBlock2D"), up_block_types=("UpBlock2D", "CrossAttnUpBlock2D"),
-        cross_attention_dim=TEXT_DIM, attention_head_dim=(2, 4), use_linear_projection=True, norm_num_groups=4,
+        sample_size=8,
+        in_channels=4,
+        out_channels=4,
+        layers_per_block=1,
+        block_out_channels=(8, 16),
+        down_block_types=("CrossAttnDownBlock2D", "DownBlock2D"),
+        up_block_types=("UpBlock2D", "CrossAttnUpBlock2D"),
+        cross_attention_dim=TEXT_DIM,
+        attention_head_dim=(2, 4),
+        use_linear_projection=True,
+        norm_num_groups=4,
     ).save_pretrained(root / "unet")
     # A VAE with SD's factor-8 downsampling (four encoder blocks, three of them stride 2).
     AutoencoderKL(
-        in_channels=3, out_channels=3, latent_channels=4, layers_per_block=1, norm_num_groups=2,
-        block_out_channels=(4, 4, 4, 4), down_block_types=("DownEncoderBlock2D",) * 4,
-        up_block_types=("UpDecoderBlock2D",) * 4, sample_size=64,
+        in_channels=3,
+        out_channels=3,
+        latent_channels=4,
+        layers_per_block=1,
+        norm_num_groups=2,
+        block_out_channels=(4, 4, 4, 4),
+        down_block_types=("DownEncoderBlock2D",) * 4,
+        up_block_types=("UpDecoderBlock2D",) * 4,
+        sample_size=64,
     ).save_pretrained(root / "vae")
     return root
 
@@ -65,8 +88,13 @@ def sd21_folder(tmp_path_factory):
 @pytest.fixture
 def sd21_model(sd21_folder):
     torch.manual_seed(0)
-    cfg = RelightConfig(preset="sd21", sd21_path=str(sd21_folder), resolution=64, num_light_tokens=2,
-                        condition_widths=(4, 4, 4, 4, 8, 8))
+    cfg = RelightConfig(
+        preset="sd21",
+        sd21_path=str(sd21_folder),
+        resolution=64,
+        num_light_tokens=2,
+        condition_widths=(4, 4, 4, 4, 8, 8),
+    )
     return RelightDiffusion(cfg)
 
 
@@ -101,9 +129,11 @@ def test_frozen_parts_and_shapes(sd21_model):
 def test_training_step_moves_only_trainable_parts(sd21_model):
     m = sd21_model
     gen = torch.Generator().manual_seed(1)
-    batch = {"images": torch.rand(1, 2, 3, 64, 64, generator=gen),
-             "light": torch.tensor([[[0.0, 0.0, 4.0], [1.0, 1.0, 5.0]]]),
-             "camera": torch.tensor([[[0.0, 0.0, 4.0], [0.0, 0.0, 4.0]]])}
+    batch = {
+        "images": torch.rand(1, 2, 3, 64, 64, generator=gen),
+        "light": torch.tensor([[[0.0, 0.0, 4.0], [1.0, 1.0, 5.0]]]),
+        "camera": torch.tensor([[[0.0, 0.0, 4.0], [0.0, 0.0, 4.0]]]),
+    }
     m.train()
     loss = diffusion_loss(m, make_train_scheduler(), batch, torch.Generator().manual_seed(0))
     loss.backward()
@@ -127,15 +157,23 @@ def test_save_load_stores_only_trained_weights(sd21_model, tmp_path):
     loaded = RelightDiffusion.from_pretrained(tmp_path / "ckpt")
     photo, light, camera, x, t = _inputs()
     with torch.no_grad():
-        assert torch.equal(m.denoise(x, t, *m.encode_condition(photo, photo, light, camera)),
-                           loaded.denoise(x, t, *loaded.encode_condition(photo, photo, light, camera)))
+        assert torch.equal(
+            m.denoise(x, t, *m.encode_condition(photo, photo, light, camera)),
+            loaded.denoise(x, t, *loaded.encode_condition(photo, photo, light, camera)),
+        )
 
 
 def test_pipeline_decodes_to_images(sd21_model):
     pipe = RelightPipeline(sd21_model)
     lights = torch.tensor([[1.0, 1.0, 4.0], [-2.0, 0.5, 6.0]])
-    out = pipe(torch.rand(3, 64, 64), lights, torch.tensor([0.0, 0.0, 4.0]), num_inference_steps=2,
-               generator=torch.Generator().manual_seed(0), progress=False)
+    out = pipe(
+        torch.rand(3, 64, 64),
+        lights,
+        torch.tensor([0.0, 0.0, 4.0]),
+        num_inference_steps=2,
+        generator=torch.Generator().manual_seed(0),
+        progress=False,
+    )
     assert out.shape == (2, 3, 64, 64) and torch.isfinite(out).all() and (out >= 0).all()
 
 
