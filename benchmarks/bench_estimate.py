@@ -40,15 +40,15 @@ def main() -> None:
 
     model = load_estimator()
     material = generate(10_000_003, size=args.size)
-    light, camera = eval_lights()
-    light, camera = light[: args.views], camera[: args.views]
-    images = kernels.render(*(t[None] for t in material.map_tensors()), light, camera)
-    images, light, camera = images, light[None], camera[None]
+    light_pos, camera_pos = eval_lights()
+    light_pos, camera_pos = light_pos[: args.views], camera_pos[: args.views]
+    images = kernels.render(*(t[None] for t in material.map_tensors()), light_pos, camera_pos)
+    images, light_pos, camera_pos = images, light_pos[None], camera_pos[None]
 
     with torch.no_grad():
-        model(images, light, camera)  # warm-up (kernel load, allocator)
+        model(images, light_pos, camera_pos)  # warm-up (kernel load, allocator)
         tick = time.perf_counter()
-        model(images, light, camera)
+        model(images, light_pos, camera_pos)
         forward_s = time.perf_counter() - tick
     rows = {"forward_s": forward_s}
     losses = {"warp": kernels.rendering_loss}
@@ -58,7 +58,9 @@ def main() -> None:
         tick = time.perf_counter()
         # tol=-1 disables the early stop (it would need the loss to double), so every
         # run takes exactly `steps` steps: the worst case.
-        result = refine(model, images, light, camera, steps=args.steps, tol=-1.0, render_loss_fn=fn, progress=False)
+        result = refine(
+            model, images, light_pos, camera_pos, steps=args.steps, tol=-1.0, render_loss_fn=fn, progress=False
+        )
         rows[f"refine_{name}_s"] = time.perf_counter() - tick
         rows[f"refine_{name}_steps"] = len(result.history)
     total = forward_s + rows["refine_warp_s"]

@@ -162,21 +162,21 @@ def _setup(case: Case, impl: str, device: str, seed: int = 0):
             rand(case.b, 3, case.h, case.w),
         ]
         maps = [m.requires_grad_(need_grad) for m in maps]
-        light = torch.cat([rand(case.b, case.k, 2, lo=-4, hi=4), rand(case.b, case.k, 1, lo=4, hi=8)], -1)
-        camera = torch.tensor([0.0, 0.0, 4.0], device=device)
+        light_pos = torch.cat([rand(case.b, case.k, 2, lo=-4, hi=4), rand(case.b, case.k, 1, lo=4, hi=8)], -1)
+        camera_pos = torch.tensor([0.0, 0.0, 4.0], device=device)
         leaves = maps
         if case.op == "render":
 
             def forward():
-                return lib.render(*maps, light, camera)
+                return lib.render(*maps, light_pos, camera_pos)
 
             cot = torch.randn((case.b, case.k, 3, case.h, case.w), generator=g).to(device) if need_grad else None
         else:
             with torch.no_grad():
-                target = kernels.render(*[m.detach() * 0.9 for m in maps], light, camera)
+                target = kernels.render(*[m.detach() * 0.9 for m in maps], light_pos, camera_pos)
 
             def forward():
-                return lib.rendering_loss(*maps, target, light, camera)
+                return lib.rendering_loss(*maps, target, light_pos, camera_pos)
 
             cot = None
 
@@ -331,8 +331,11 @@ def compile_worker(modules: list[str]) -> dict:
                 torch.rand(1, 3, 4, 4, dtype=dtype),
             ]
             maps = [m.requires_grad_() for m in maps]
-            light, camera = torch.tensor([[1.0, 0.0, 4.0]], dtype=dtype), torch.tensor([0.0, 0.0, 4.0], dtype=dtype)
-            out = kernels.render(*maps, light, camera)  # forward module compiled above
+            light_pos, camera_pos = (
+                torch.tensor([[1.0, 0.0, 4.0]], dtype=dtype),
+                torch.tensor([0.0, 0.0, 4.0], dtype=dtype),
+            )
+            out = kernels.render(*maps, light_pos, camera_pos)  # forward module compiled above
 
             def call(out=out, maps=maps):
                 torch.autograd.grad(out, maps, torch.ones_like(out), retain_graph=True)

@@ -48,10 +48,10 @@ def main() -> None:
         model = getattr(getattr(relighter, "pipeline", None), "model", None)
         size = model.config.resolution if model is not None else 64
         data = load_eval_data(EvalConfig(count=1, size=size))
-        photo, camera, lights = data.photo[:1], data.camera[:1], data.lights[:1]  # 7 target lights
+        photo, light_pos, camera_pos = data.photo[:1], data.light_pos[:1], data.camera_pos[:1]  # 7 target lights
 
-        def call(relighter=relighter, photo=photo, camera=camera, lights=lights):
-            return relighter.relight(photo, camera, lights, generator=torch.Generator().manual_seed(0))
+        def call(relighter=relighter, photo=photo, light_pos=light_pos, camera_pos=camera_pos):
+            return relighter.relight(photo, light_pos, camera_pos, generator=torch.Generator().manual_seed(0))
 
         call()  # warm-up: kernel load, allocator
         times = []

@@ -8,9 +8,9 @@ refinement (``estimator.refine.refine``). Reported per configuration, averaged o
 materials:
 
 - map MSE of diffuse, normal, roughness, specular against the ground truth;
-- re-rendered PSNR and SSIM: predicted and true maps rendered under ``HELDOUT_LIGHTS``
-  (16 positions, none of them an input light), tone-mapped (``kernels.tonemap``), PSNR
-  from the MSE over all lights and pixels per material, SSIM by ``kornia.metrics.ssim``
+- re-rendered PSNR and SSIM (``materials.metrics``): predicted and true maps rendered
+  under ``HELDOUT_LIGHTS`` (16 positions, none of them an input light), tone-mapped
+  (``kernels.tonemap``), PSNR from the MSE over all lights and pixels per material, SSIM
   (11 x 11 Gaussian window) averaged over lights and pixels.
 
 The strong-highlight check: on the most specular third of the materials (score
@@ -33,13 +33,13 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import kornia
 import torch
 from tqdm.auto import tqdm
 
 import kernels
 from estimator.model import SVBRDFEstimator
 from estimator.refine import refine
+from materials import metrics
 from materials.dataset import EVAL_SEEDS, GroupConfig, RenderedGroups
 from materials.io.atomic import atomic_file
 from materials.lights import EVAL_CAMERA, EVAL_LIGHTS, eval_lights
@@ -89,8 +89,6 @@ HIGHLIGHT_RADIUS = 0.5
 #: Crop seed of the evaluation materials (``GroupConfig.seed``); the materials are
 #: ``EVAL_SEEDS``, disjoint from the training seeds.
 EVAL_CROP_SEED = 0
-#: Smallest MSE used in PSNR (a perfect match would be infinite): 1e-10 = 100 dB.
-MIN_MSE = 1e-10
 
 MAP_NAMES = ("diffuse", "normal", "roughness", "specular")
 
@@ -112,9 +110,9 @@ class EvalRow:
 
 
 def heldout_lights() -> tuple[torch.Tensor, torch.Tensor]:
-    """(light ``[16, 3]``, camera ``[16, 3]``) float32: ``HELDOUT_LIGHTS`` seen from ``EVAL_CAMERA``."""
-    light = torch.tensor(HELDOUT_LIGHTS, dtype=torch.float32)
-    return light, torch.tensor(EVAL_CAMERA, dtype=torch.float32).expand_as(light).clone()
+    """(light_pos ``[16, 3]``, camera_pos ``[16, 3]``) float32: ``HELDOUT_LIGHTS`` seen from ``EVAL_CAMERA``."""
+    light_pos = torch.tensor(HELDOUT_LIGHTS, dtype=torch.float32)
+    return light_pos, torch.tensor(EVAL_CAMERA, dtype=torch.float32).expand_as(light_pos).clone()
 
 
 def specular_score(material: Material) -> torch.Tensor:
@@ -123,7 +121,9 @@ def specular_score(material: Material) -> torch.Tensor:
     return material.specular.mean((-3, -2, -1)) * (1 - material.roughness.mean((-3, -2, -1)))
 
 
-def highlight_mask(flash: torch.Tensor, camera: Sequence[float] = EVAL_CAMERA, plane_size: float = 4.0) -> torch.Tensor:
+def highlight_mask(
+    flash: torch.Tensor, camera_pos: Sequence[float] = EVAL_CAMERA, plane_size: float = 4.0
+) -> torch.Tensor:
     """Highlight region of flash photos ``[B, 3, H, W]`` (linear): tone-mapped max channel
     >= ``SATURATION``, or within ``HIGHLIGHT_RADIUS`` of the mirror point (for a light at
     the camera, the point under it). Returns ``[B, 1, H, W]`` bool."""
@@ -131,20 +131,22 @@ def highlight_mask(flash: torch.Tensor, camera: Sequence[float] = EVAL_CAMERA, p
     saturated = kernels.tonemap(flash).amax(1, keepdim=True) >= SATURATION
     x = ((torch.arange(w, dtype=torch.float32) + 0.5) / w - 0.5) * plane_size
     y = -((torch.arange(h, dtype=torch.float32) + 0.5) / h - 0.5) * plane_size
-    disc = (x[None, :] - camera[0]) ** 2 + (y[:, None] - camera[1]) ** 2 <= HIGHLIGHT_RADIUS**2
+    disc = (x[None, :] - camera_pos[0]) ** 2 + (y[:, None] - camera_pos[1]) ** 2 <= HIGHLIGHT_RADIUS**2
     return saturated | disc.to(flash.device)[None, None]
 
 
 def _rerender_metrics(pred: Material, true: Material) -> tuple[torch.Tensor, torch.Tensor]:
-    """Per-material PSNR and SSIM of tone-mapped renders under ``HELDOUT_LIGHTS``."""
-    light, camera = (t.to(pred.device) for t in heldout_lights())
+    """Per-material PSNR and SSIM ``[B]`` (float64) of tone-mapped renders under
+    ``HELDOUT_LIGHTS``: PSNR of the MSE pooled over the lights, SSIM averaged over them."""
+    light_pos, camera_pos = (t.to(pred.device) for t in heldout_lights())
     with torch.no_grad():
-        a = kernels.tonemap(kernels.render(*pred.map_tensors(), light, camera))
-        b = kernels.tonemap(kernels.render(*true.map_tensors(), light, camera))
-    mse = ((a - b) ** 2).mean((1, 2, 3, 4)).clamp_min(MIN_MSE)
-    psnr = 10 * torch.log10(1.0 / mse)
-    ssim = kornia.metrics.ssim(a.flatten(0, 1), b.flatten(0, 1), window_size=11, max_val=1.0)
-    return psnr, ssim.unflatten(0, a.shape[:2]).mean((1, 2, 3, 4))
+        a = kernels.tonemap(kernels.render(*pred.map_tensors(), light_pos, camera_pos))
+        b = kernels.tonemap(kernels.render(*true.map_tensors(), light_pos, camera_pos))
+    per_material = a.shape[:2]  # [B, K]: every image has H x W pixels, so the mean of
+    # the per-image MSEs is the MSE over all lights and pixels.
+    mse = metrics.mse(a, b).view(per_material).mean(1)
+    ssim = metrics.ssim(a, b).view(per_material).mean(1)
+    return metrics.psnr_from_mse(mse), ssim
 
 
 def evaluate(
@@ -181,7 +183,7 @@ def evaluate(
     was_training = model.training
     model.eval()
     device = next(model.parameters()).device
-    light8, camera8 = (t.to(device) for t in eval_lights(include_input=True))
+    light_pos8, camera_pos8 = (t.to(device) for t in eval_lights(include_input=True))
     configs = [(n, r) for n in (1, 8) for r in ((False, True) if refine_steps > 0 else (False,))]
     per = {c: {k: [] for k in (*MAP_NAMES, "psnr", "ssim", "hl_diffuse")} for c in configs}
     seconds = dict.fromkeys(configs, 0.0)
@@ -192,21 +194,22 @@ def evaluate(
         true = Material.stack([data.material(i) for i in range(start, min(start + batch_size, len(seeds)))]).to(device)
         b = true.diffuse.shape[0]
         with torch.no_grad():
-            images = kernels.render(*true.map_tensors(), light8, camera8)  # [b, 8, 3, H, W]
+            images = kernels.render(*true.map_tensors(), light_pos8, camera_pos8)  # [b, 8, 3, H, W]
         mask = highlight_mask(images[:, 0])
         scores.append(specular_score(true))
         has_mask.append(mask.flatten(1).any(1))
         for n, refined in configs:
             views = slice(0, n)
-            inp, li, ca = images[:, views], light8[views].expand(b, n, 3), camera8[views].expand(b, n, 3)
+            inp = images[:, views]
+            light_pos, camera_pos = light_pos8[views].expand(b, n, 3), camera_pos8[views].expand(b, n, 3)
             tick = time.perf_counter()
             if refined:
                 preds = [
                     refine(
                         model,
                         inp[i : i + 1],
-                        li[i : i + 1],
-                        ca[i : i + 1],
+                        light_pos[i : i + 1],
+                        camera_pos[i : i + 1],
                         steps=refine_steps,
                         render_loss_fn=render_loss_fn,
                         progress=False,
@@ -216,7 +219,7 @@ def evaluate(
                 pred = Material(**{k: torch.cat([getattr(p, k) for p in preds]) for k in MAP_NAMES})
             else:
                 with torch.no_grad():
-                    pred = model(inp, li, ca)
+                    pred = model(inp, light_pos, camera_pos)
             seconds[(n, refined)] += time.perf_counter() - tick
             for name, p, t in zip(MAP_NAMES, pred.map_tensors(), true.map_tensors()):
                 per[(n, refined)][name].append(((p - t) ** 2).mean((1, 2, 3)))

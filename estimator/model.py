@@ -2,7 +2,7 @@
 
 Data flow for a batch of B materials seen in V views (any V >= 1), shapes symbolic:
 
-1. Inputs: ``images [B, V, 3, H, W]`` linear radiance; ``light``, ``camera [B, V, 3]``.
+1. Inputs: ``images [B, V, 3, H, W]`` linear radiance; ``light_pos``, ``camera_pos [B, V, 3]``.
    Each view is encoded as ``(log(x + 0.01) + INPUT_SHIFT) * INPUT_SCALE`` (the log of the
    rendering loss, Deschaintre et al. 2018: flash highlights span four decades, the log
    keeps dark texture and the highlight on one scale) concatenated with its 9-channel
@@ -46,6 +46,7 @@ from diffusers.models.modeling_utils import ModelMixin
 
 import kernels
 from estimator.config import FIELDS_ADDED_SINCE, EstimatorConfig
+from kernels.checks import FLOATING_DTYPES, check_finite, check_same, check_shape
 from materials.types import Material
 
 __all__ = ["SVBRDFEstimator", "check_views", "INPUT_SHIFT", "INPUT_SCALE", "NORMAL_MIN_Z"]
@@ -162,60 +163,45 @@ class AdapterHead(nn.Module):
         return self.out(self.block(x))
 
 
-def check_views(images, light, camera, *, multiple: int = 1) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Validate a multi-view batch; return (images, light, camera) with positions ``[B, V, 3]``.
+def check_views(images, light_pos, camera_pos, *, multiple: int = 1) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Validate a multi-view batch; return (images, light_pos, camera_pos) with positions
+    ``[B, V, 3]``.
 
     Args:
-        images: ``[B, V, 3, H, W]`` linear radiance, float32 or float64, finite.
-        light, camera: ``[B, V, 3]`` or ``[V, 3]`` (shared by the batch), finite.
+        images: ``[B, V, 3, H, W]`` linear radiance, any floating dtype, finite.
+        light_pos, camera_pos: ``[B, V, 3]`` or ``[V, 3]`` (shared by the batch), finite.
         multiple: H and W must be multiples of it.
     Raises:
         TypeError: a non-tensor or non-float argument.
-        ValueError: naming the argument, for a wrong shape, mismatching V, NaN or inf.
+        ValueError: naming the argument, for a wrong shape (e.g. V differing from the
+            images'), NaN or inf, another device.
     """
-    for name, t in (("images", images), ("light", light), ("camera", camera)):
-        if not isinstance(t, torch.Tensor):
-            raise TypeError(f"{name} must be a torch.Tensor, got {type(t).__name__}")
-        if not t.is_floating_point():
-            raise TypeError(f"{name} must be a floating-point tensor, got {t.dtype}")
-    if images.dim() != 5 or images.shape[2] != 3:
-        raise ValueError(f"images must have shape [B, V, 3, H, W], got {tuple(images.shape)}")
-    b, v, _, h, w = images.shape
-    if b == 0 or v == 0 or h == 0 or w == 0:
+    dims = check_shape(images, "B V 3 H W", name="images", dtypes=FLOATING_DTYPES)
+    b, h, w = dims["B"], dims["H"], dims["W"]
+    if images.numel() == 0:
         raise ValueError(f"images must be non-empty, got shape {tuple(images.shape)}")
     if h % multiple or w % multiple:
         raise ValueError(f"images H and W must be multiples of {multiple}, got {h} x {w}")
     out = []
-    for name, t in (("light", light), ("camera", camera)):
-        if t.dim() == 2:
-            t = t[None].expand(b, *t.shape)
-        if t.dim() != 3 or t.shape[-1] != 3:
-            raise ValueError(f"{name} must have shape [B, V, 3] or [V, 3], got {tuple(t.shape)}")
-        if t.shape[0] != b or t.shape[1] != v:
-            raise ValueError(
-                f"{name} has shape {tuple(t.shape)} but images hold B={b} batches of V={v} views; "
-                f"{name} needs one position per view ([{b}, {v}, 3])"
-            )
-        if t.device != images.device:
-            raise ValueError(f"{name} is on {t.device} but images are on {images.device}")
-        out.append(t)
-    for name, t in (("images", images), ("light", out[0]), ("camera", out[1])):
-        if not bool(torch.isfinite(t).all()):
-            raise ValueError(f"{name} holds {int((~torch.isfinite(t)).sum())} NaN or inf value(s)")
+    for name, t in (("light_pos", light_pos), ("camera_pos", camera_pos)):
+        check_shape(t, ("V 3", "B V 3"), name=name, dims=dims, dtypes=FLOATING_DTYPES)
+        check_same("images", images, dtype=False, **{name: t})
+        out.append(t[None].expand(b, *t.shape) if t.dim() == 2 else t)
+    check_finite(images=images, light_pos=out[0], camera_pos=out[1])
     return images, out[0], out[1]
 
 
 class SVBRDFEstimator(ModelMixin, ConfigMixin):
-    """N-view SVBRDF estimator: ``(images, light, camera) -> Material`` (module docstring).
+    """N-view SVBRDF estimator: ``(images, light_pos, camera_pos) -> Material`` (module docstring).
 
     Example:
         >>> import torch
         >>> from estimator import SVBRDFEstimator
         >>> model = SVBRDFEstimator(base_channels=8, channel_mults=(1, 2, 4), adapter_width=8, norm_groups=4)
         >>> images = torch.rand(2, 3, 3, 32, 32)        # B=2 materials, V=3 views, linear
-        >>> light = torch.tensor([[0., 0, 4], [2, 2, 5], [-2, 1, 6]]).expand(2, 3, 3)
-        >>> camera = torch.tensor([0., 0, 4]).expand(2, 3, 3)
-        >>> model(images, light, camera).diffuse.shape
+        >>> light_pos = torch.tensor([[0., 0, 4], [2, 2, 5], [-2, 1, 6]]).expand(2, 3, 3)
+        >>> camera_pos = torch.tensor([0., 0, 4]).expand(2, 3, 3)
+        >>> model(images, light_pos, camera_pos).diffuse.shape
         torch.Size([2, 3, 32, 32])
     """
 
@@ -297,24 +283,24 @@ class SVBRDFEstimator(ModelMixin, ConfigMixin):
         return super().from_pretrained(pretrained_model_name_or_path, **kwargs)
 
     # ------------------------------------------------------------------ stages
-    def encode(self, images: torch.Tensor, light: torch.Tensor, camera: torch.Tensor) -> list[torch.Tensor]:
+    def encode(self, images: torch.Tensor, light_pos: torch.Tensor, camera_pos: torch.Tensor) -> list[torch.Tensor]:
         """Per-view encoding, cross-view correlation and pooling.
 
         Args:
             images: ``[B, V, 3, H, W]`` linear radiance (negative values clamped to 0).
-            light, camera: ``[B, V, 3]`` or ``[V, 3]`` positions (``dgrsise`` scene units).
+            light_pos, camera_pos: ``[B, V, 3]`` or ``[V, 3]`` positions (``dgrsise`` scene units).
         Returns:
             The pooled pyramid, one ``[B, C_i, H / 2^i, W / 2^i]`` per level; the last is
             the bottleneck latent (global context already added). With the shading branch,
             level 0 carries its ``C_s`` channels after the ``C_0`` skip channels
             (``decode`` passes them on to the heads).
         """
-        images, light, camera = check_views(images, light, camera, multiple=self.arch.downsample_factor)
+        images, light_pos, camera_pos = check_views(images, light_pos, camera_pos, multiple=self.arch.downsample_factor)
         b, v, _, h, w = images.shape
         dtype = self.dtype
         lvh = kernels.lvh_maps(
-            light.detach().to(dtype).contiguous(),
-            camera.detach().to(dtype).contiguous(),
+            light_pos.detach().to(dtype).contiguous(),
+            camera_pos.detach().to(dtype).contiguous(),
             (h, w),
             plane_size=self.arch.plane_size,
         )
@@ -365,8 +351,8 @@ class SVBRDFEstimator(ModelMixin, ConfigMixin):
     def forward(
         self,
         images: torch.Tensor,
-        light: torch.Tensor,
-        camera: torch.Tensor,
+        light_pos: torch.Tensor,
+        camera_pos: torch.Tensor,
         *,
         latent_offset: torch.Tensor | None = None,
     ) -> Material:
@@ -375,7 +361,7 @@ class SVBRDFEstimator(ModelMixin, ConfigMixin):
         Returns a Material with maps ``[B, C, H, W]``: diffuse, specular (linear RGB in
         [0, 1]), normal (unit, z > 0), roughness (in [0, 1]).
         """
-        return self.predict_maps(self.decode(self.encode(images, light, camera), latent_offset))
+        return self.predict_maps(self.decode(self.encode(images, light_pos, camera_pos), latent_offset))
 
     @property
     def _decoder_channels(self) -> int:

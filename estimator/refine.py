@@ -30,7 +30,7 @@ import torch.nn.functional as F
 from tqdm.auto import tqdm
 
 import kernels
-from estimator.model import SVBRDFEstimator, check_views
+from estimator.model import NORMAL_MIN_Z, SVBRDFEstimator, check_views
 from materials.types import Material
 
 __all__ = [
@@ -58,8 +58,6 @@ LATENT_LR = 1e-1
 HEAD_LR = 2e-3
 #: Clamp before taking logits so maps at exactly 0 or 1 stay finite (one 8-bit step is 4e-3).
 LOGIT_EPS = 1e-3
-#: Smallest normal z for the slope parametrisation of ``refine_maps`` (~87 degree tilt).
-MIN_NORMAL_Z = 0.05
 
 RenderLossFn = Callable[..., torch.Tensor]
 
@@ -82,14 +80,14 @@ def converged(history: list[float], window: int, tol: float) -> bool:
     return (before - recent) <= tol * abs(before)
 
 
-def _prepare(images, light, camera, device) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    images, light, camera = check_views(images, light, camera)
-    return (t.detach().to(device=device, dtype=torch.float32).contiguous() for t in (images, light, camera))
+def _prepare(images, light_pos, camera_pos, device) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    images, light_pos, camera_pos = check_views(images, light_pos, camera_pos)
+    return (t.detach().to(device=device, dtype=torch.float32).contiguous() for t in (images, light_pos, camera_pos))
 
 
-def _loss_closure(render_loss_fn: RenderLossFn, images, light, camera, preset, overrides):
+def _loss_closure(render_loss_fn: RenderLossFn, images, light_pos, camera_pos, preset, overrides):
     def loss(material: Material) -> torch.Tensor:
-        return render_loss_fn(*material.map_tensors(), images, light, camera, preset=preset, **overrides)
+        return render_loss_fn(*material.map_tensors(), images, light_pos, camera_pos, preset=preset, **overrides)
 
     return loss
 
@@ -125,8 +123,8 @@ def _optimise(params, make_loss, steps, lr, tol, window, bar, history, stage) ->
 def refine(
     model: SVBRDFEstimator,
     images: torch.Tensor,
-    light: torch.Tensor,
-    camera: torch.Tensor,
+    light_pos: torch.Tensor,
+    camera_pos: torch.Tensor,
     *,
     steps: int = 200,
     latent_steps: int | None = None,
@@ -144,7 +142,7 @@ def refine(
     Args:
         model: a trained ``SVBRDFEstimator``; deep-copied, never modified.
         images: ``[B, V, 3, H, W]`` linear radiance of the inputs.
-        light, camera: ``[B, V, 3]`` (or ``[V, 3]``) positions of each input.
+        light_pos, camera_pos: ``[B, V, 3]`` (or ``[V, 3]``) positions of each input.
         steps: total optimisation steps (both stages).
         latent_steps: steps of stage 1 (latent offset); None: ``steps // 4``. Stage 2
             (adapter heads) gets the rest.
@@ -157,7 +155,7 @@ def refine(
         ``RefineResult(material, history, latent_steps)``; ``material`` maps ``[B, C, H, W]``.
 
     Example:
-        >>> result = refine(model, images, light, camera, steps=50, progress=False)  # doctest: +SKIP
+        >>> result = refine(model, images, light_pos, camera_pos, steps=50, progress=False)  # doctest: +SKIP
         >>> result.material.diffuse.shape, result.history[0] > result.history[-1]  # doctest: +SKIP
     """
     if steps < 0:
@@ -167,12 +165,12 @@ def refine(
         raise ValueError(f"latent_steps must lie in [0, steps={steps}], got {latent_steps}")
     work = copy.deepcopy(model).float().eval().requires_grad_(False)
     device = next(work.parameters()).device
-    images, light, camera = _prepare(images, light, camera, device)
-    loss_of = _loss_closure(render_loss_fn, images, light, camera, preset, render_overrides)
+    images, light_pos, camera_pos = _prepare(images, light_pos, camera_pos, device)
+    loss_of = _loss_closure(render_loss_fn, images, light_pos, camera_pos, preset, render_overrides)
     history: list[float] = []
 
     with torch.no_grad():
-        pyramid = work.encode(images, light, camera)
+        pyramid = work.encode(images, light_pos, camera_pos)
     with tqdm(total=steps, desc="refine", disable=not progress) as bar:
         offset = torch.zeros_like(pyramid[-1], requires_grad=True)
         _, taken = _optimise(
@@ -214,8 +212,8 @@ def _logit(x: torch.Tensor) -> torch.Tensor:
 def refine_maps(
     material: Material,
     images: torch.Tensor,
-    light: torch.Tensor,
-    camera: torch.Tensor,
+    light_pos: torch.Tensor,
+    camera_pos: torch.Tensor,
     *,
     steps: int = 200,
     lr: float = 1e-2,
@@ -234,7 +232,7 @@ def refine_maps(
 
     Args:
         material: batched initial maps ``[B, C, H, W]`` (e.g. the estimator's output).
-        images, light, camera: as in ``refine`` (same B, V; H, W of the maps).
+        images, light_pos, camera_pos: as in ``refine`` (same B, V; H, W of the maps).
         steps, lr: Adam steps (upper bound, early stop by ``tol`` / ``window``) and rate.
         render_loss_fn, preset, **render_overrides, progress: as in ``refine``.
     Returns:
@@ -244,7 +242,7 @@ def refine_maps(
         raise ValueError(f"steps must be >= 0, got {steps}")
     if not isinstance(material, Material) or material.diffuse.dim() != 4:
         raise ValueError("material must be a batched Material with maps [B, C, H, W]")
-    images, light, camera = _prepare(images, light, camera, material.device)
+    images, light_pos, camera_pos = _prepare(images, light_pos, camera_pos, material.device)
     if images.shape[0] != material.diffuse.shape[0] or images.shape[-2:] != material.diffuse.shape[-2:]:
         raise ValueError(
             f"images {tuple(images.shape)} must match the material's batch and size "
@@ -252,7 +250,8 @@ def refine_maps(
         )
     m = material.to(torch.float32)
     n = F.normalize(m.normal.detach(), dim=1)
-    nz = n[:, 2:3].clamp_min(MIN_NORMAL_Z)
+    # The estimator's own floor on normal z (~87 degree tilt) bounds the slopes.
+    nz = n[:, 2:3].clamp_min(NORMAL_MIN_Z)
     params = [
         _logit(m.diffuse.detach()).requires_grad_(True),
         (n[:, :2] / nz).requires_grad_(True),
@@ -265,7 +264,7 @@ def refine_maps(
         normal = F.normalize(torch.cat([slope, torch.ones_like(slope[:, :1])], dim=1), dim=1)
         return Material(torch.sigmoid(p[0]), normal, torch.sigmoid(p[2]), torch.sigmoid(p[3]))
 
-    loss_of = _loss_closure(render_loss_fn, images, light, camera, preset, render_overrides)
+    loss_of = _loss_closure(render_loss_fn, images, light_pos, camera_pos, preset, render_overrides)
     history: list[float] = []
     with tqdm(total=steps, desc="refine maps", disable=not progress) as bar:
         _optimise(params, lambda: loss_of(to_material(params)), steps, lr, tol, window, bar, history, "maps")

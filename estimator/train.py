@@ -288,7 +288,7 @@ def main(cfg: TrainConfig) -> Path:
         views = select_views(
             batch["images"].shape[1], cfg.max_views, _step_generator(cfg.seed, step, stream=1), cfg.min_views
         )
-        pred = model(batch["images"][:, views], batch["light"][:, views], batch["camera"][:, views])
+        pred = model(batch["images"][:, views], batch["light_pos"][:, views], batch["camera_pos"][:, views])
         parts = estimator_loss(
             pred,
             Material.from_stacked(batch["maps"]),

@@ -10,7 +10,7 @@ import torch
 __all__ = ["mirror_point", "highlight_offsets"]
 
 
-def mirror_point(camera_pos: torch.Tensor, light_pos: torch.Tensor) -> torch.Tensor:
+def mirror_point(light_pos: torch.Tensor, camera_pos: torch.Tensor) -> torch.Tensor:
     """Plane point ``[..., 2]`` where the mirror highlight of light p seen from camera c sits:
     m = (c_xy p_z + p_xy c_z) / (p_z + c_z) (SPEC section 3). Shapes broadcast."""
     c_xy, c_z = camera_pos[..., :2], camera_pos[..., 2:3]
@@ -19,7 +19,7 @@ def mirror_point(camera_pos: torch.Tensor, light_pos: torch.Tensor) -> torch.Ten
 
 
 def highlight_offsets(
-    camera_pos: torch.Tensor, light_pos: torch.Tensor, plane_size: float, size: tuple[int, int]
+    light_pos: torch.Tensor, camera_pos: torch.Tensor, plane_size: float, size: tuple[int, int]
 ) -> torch.Tensor:
     """Feature-pixel offsets ``[..., 2]`` (dx, dy) that move the input's highlight to the
     target light's.
@@ -30,13 +30,13 @@ def highlight_offsets(
     up (-rows).
 
     Args:
-        camera_pos: ``[..., 3]`` camera positions; light_pos: ``[..., 3]`` target lights.
+        light_pos: ``[..., 3]`` target lights; camera_pos: ``[..., 3]`` camera positions.
         plane_size: side of the plane in scene units; size: (h, w) of the feature map.
     """
     if not plane_size > 0:
         raise ValueError(f"plane_size must be positive, got {plane_size}")
     if (light_pos[..., 2] <= 0).any() or (camera_pos[..., 2] <= 0).any():
         raise ValueError("light_pos and camera_pos must lie above the plane (z > 0)")
-    shift = mirror_point(camera_pos, light_pos) - camera_pos[..., :2]
+    shift = mirror_point(light_pos, camera_pos) - camera_pos[..., :2]
     h, w = size
     return torch.stack([shift[..., 0] * (w / plane_size), -shift[..., 1] * (h / plane_size)], dim=-1)

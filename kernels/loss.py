@@ -17,8 +17,8 @@ from collections.abc import Sequence
 import torch
 
 from kernels._autograd import RenderLogL1Function, RowLossFunction, Scene
-from kernels._checks import broadcast_positions, check_finite, check_same, check_tensor
 from kernels._warp import ensure_init
+from kernels.checks import broadcast_positions, check_finite, check_same, check_shape
 from kernels.presets import RenderPreset
 from kernels.render import check_maps, render, resolve_preset
 
@@ -37,8 +37,8 @@ LOG_EPS = 0.01
 
 
 def _pair(x: torch.Tensor, y: torch.Tensor) -> None:
-    check_tensor("x", x)
-    check_tensor("y", y)
+    check_shape(x, "*", name="x")
+    check_shape(y, "*", name="y")
     check_same("x", x, y=y)
     if x.shape != y.shape:
         raise ValueError(f"x and y must have the same shape, got {tuple(x.shape)} and {tuple(y.shape)}")
@@ -109,11 +109,9 @@ def rendering_loss(
     b, h, w = check_maps(diffuse, normal, roughness, specular)
     light = broadcast_positions("light_pos", light_pos, b, diffuse)
     camera = broadcast_positions("camera_pos", camera_pos, b, diffuse, num=light.shape[1])
-    check_tensor("target", target, dims=5)
-    check_same("diffuse", diffuse, target=target)
     k = light.shape[1]
-    if tuple(target.shape) != (b, k, 3, h, w):
-        raise ValueError(f"target must have shape {(b, k, 3, h, w)} (B, K, 3, H, W), got {tuple(target.shape)}")
+    check_shape(target, "B K 3 H W", name="target", dims={"B": b, "K": k, "H": h, "W": w})
+    check_same("diffuse", diffuse, target=target)
     check_finite(target=target)
     if float(target.detach().min()) <= -eps:
         raise ValueError(f"target must be > -eps ({eps}) for the log; found {float(target.detach().min()):.4g}")

@@ -12,9 +12,9 @@ import torch
 import warp as wp
 
 from kernels._autograd import RenderFunction, Scene
-from kernels._checks import broadcast_positions, check_finite, check_same, check_tensor
 from kernels._render_kernels import build_render_kernels
 from kernels._warp import ensure_init, warp_device, warp_scalar, wp_array
+from kernels.checks import ShapeDims, broadcast_positions, check_finite, check_same, check_shape
 from kernels.presets import RenderPreset, get_preset
 
 __all__ = ["render", "lvh_maps", "resolve_preset", "check_maps"]
@@ -30,15 +30,13 @@ def resolve_preset(preset: str | RenderPreset, **overrides) -> RenderPreset:
 
 def check_maps(diffuse, normal, roughness, specular) -> tuple[int, int, int]:
     """Validate the four SVBRDF maps; return (B, H, W)."""
-    check_tensor("diffuse", diffuse, dims=4, channels=3)
-    check_tensor("normal", normal, dims=4, channels=3)
-    check_tensor("roughness", roughness, dims=4, channels=1)
-    check_tensor("specular", specular, dims=4, channels=3)
+    dims = ShapeDims()
+    check_shape(diffuse, "B 3 H W", name="diffuse", dims=dims)
+    check_shape(normal, "B 3 H W", name="normal", dims=dims)
+    check_shape(roughness, "B 1 H W", name="roughness", dims=dims)
+    check_shape(specular, "B 3 H W", name="specular", dims=dims)
     check_same("diffuse", diffuse, normal=normal, roughness=roughness, specular=specular)
-    b, _, h, w = diffuse.shape
-    for name, t in (("normal", normal), ("roughness", roughness), ("specular", specular)):
-        if t.shape[0] != b or t.shape[2:] != (h, w):
-            raise ValueError(f"{name} has shape {tuple(t.shape)}; expected batch {b} and size {h}x{w} like diffuse")
+    b, h, w = dims["B"], dims["H"], dims["W"]
     if b == 0 or h == 0 or w == 0:
         raise ValueError(f"maps must be non-empty, got diffuse shape {tuple(diffuse.shape)}")
     check_finite(diffuse=diffuse, normal=normal, roughness=roughness, specular=specular)
@@ -130,7 +128,7 @@ def lvh_maps(
         ``[B, K, 9, H, W]``: channels l (0-2), v (3-5), h (6-8), unit vectors, no grad.
     """
     ensure_init()
-    check_tensor("light_pos", light_pos)
+    check_shape(light_pos, "* 3", name="light_pos")
     h, w = size
     if h <= 0 or w <= 0:
         raise ValueError(f"size must be positive, got {size}")

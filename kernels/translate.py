@@ -2,7 +2,7 @@
 
 ``translate`` shifts feature maps by a per-sample sub-pixel offset (bilinear, edges
 clamped), differentiable with respect to the features and the offsets;
-``highlight_offsets`` (pure torch, ``kernels.geometry``) turns camera and light
+``highlight_offsets`` (pure torch, ``kernels.geometry``) turns light and camera
 positions into those offsets.
 """
 
@@ -11,9 +11,9 @@ from __future__ import annotations
 import torch
 import warp as wp
 
-from kernels._checks import check_finite, check_same, check_tensor
 from kernels._image_kernels import build_image_kernels
 from kernels._warp import chunk_bounds, ensure_init, parallel_chunks, preload, warp_device, warp_scalar, wp_array
+from kernels.checks import check_finite, check_same, check_shape
 from kernels.geometry import highlight_offsets, mirror_point  # re-exported
 
 __all__ = ["translate", "highlight_offsets", "mirror_point"]
@@ -85,11 +85,9 @@ def translate(features: torch.Tensor, offsets: torch.Tensor) -> torch.Tensor:
         Differentiable with respect to ``features`` and ``offsets``.
     """
     ensure_init()
-    check_tensor("features", features, dims=4)
-    check_tensor("offsets", offsets, dims=2)
+    dims = check_shape(features, "B C h w", name="features")
+    check_shape(offsets, "B 2", name="offsets", dims=dims)
     check_same("features", features, offsets=offsets)
-    if offsets.shape != (features.shape[0], 2):
-        raise ValueError(f"offsets must have shape [{features.shape[0]}, 2], got {tuple(offsets.shape)}")
     if features.numel() == 0:
         raise ValueError(f"features must be non-empty, got shape {tuple(features.shape)}")
     check_finite(features=features, offsets=offsets)

@@ -50,9 +50,8 @@ def run(args) -> int:
     rerender = kernels.render(*maps, capture.light_pos, capture.camera_pos, **kw)[0]
     # Novel lights: the evaluation set, scaled from the dgrsise plane to the capture's.
     plane = capture.plane_size or kernels.get_preset(capture.preset).plane_size
-    novel_lights = torch.tensor(EVAL_LIGHTS) * (plane / kernels.get_preset("dgrsise").plane_size)
-    camera = capture.camera_pos[0]
-    novel = kernels.render(*maps, novel_lights, camera, **kw)[0]
+    novel_light_pos = torch.tensor(EVAL_LIGHTS) * (plane / kernels.get_preset("dgrsise").plane_size)
+    novel = kernels.render(*maps, novel_light_pos, capture.camera_pos[0], **kw)[0]
     with atomic_folder(args.out, overwrite=args.overwrite, marker=ESTIMATE_MARKER) as tmp:
         save_material(
             tmp / "material",
@@ -73,7 +72,7 @@ def run(args) -> int:
             "views": capture.num_views,
             "refine_steps": args.refine,
             "refine_loss": history[-1:] and history[-1],
-            "novel_lights": novel_lights.tolist(),
+            "novel_lights": novel_light_pos.tolist(),
         }
         (tmp / ESTIMATE_MARKER).write_text(json.dumps(info, indent=2))
     print(f"wrote maps and {len(rerender) + len(novel)} re-renders to {args.out}")

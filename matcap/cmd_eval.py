@@ -1,5 +1,9 @@
-"""``relight eval relight``: the Table-1-style relighting evaluation (``relight.evaluate``);
-``relight eval estimator``: the Table-2-style estimator evaluation (``estimator.evaluate``)."""
+"""``relight eval relighting``: the Table-1-style relighting evaluation (``relight.evaluate``);
+``relight eval estimation``: the Table-2-style estimator evaluation (``estimator.evaluate``).
+
+The targets were called ``relight`` and ``estimator`` before; those spellings still work
+for one release, with a deprecation note on stderr (``DEPRECATED_TARGETS``).
+"""
 
 from __future__ import annotations
 
@@ -12,18 +16,33 @@ from pathlib import Path
 from matcap.args import check_at_least_one, set_sampling
 from matcap.errors import UsageError
 
-__all__ = ["add_parser", "run", "EVAL_MARKER"]
+__all__ = ["add_parser", "run", "EVAL_MARKER", "DEPRECATED_TARGETS"]
 
-#: File that marks a folder written by ``relight eval relight`` (safe to --overwrite).
+#: File that marks a folder written by ``relight eval relighting`` (safe to --overwrite).
 EVAL_MARKER = "relight_eval.json"
+#: Old target names (before issue 17) -> today's; accepted as aliases for one release.
+DEPRECATED_TARGETS = {"relight": "relighting", "estimator": "estimation"}
+
+
+def _note_deprecated(args) -> None:
+    """One line on stderr when the target was spelled the old way."""
+    new = DEPRECATED_TARGETS.get(args.what)
+    if new is not None:
+        print(
+            f"relight eval {args.what}: deprecated name, use 'relight eval {new}' "
+            "(the old name will be removed in the next release)",
+            file=sys.stderr,
+        )
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("eval", help="evaluations (relight, estimator)", description="Evaluations of the models.")
+    p = sub.add_parser("eval", help="evaluations (relighting, estimation)", description="Evaluations of the models.")
     what = p.add_subparsers(dest="what", required=True, metavar="WHAT")
     r = what.add_parser(
-        "relight",
-        help="relighting metrics on held-out procedural materials (Table 1 style)",
+        "relighting",
+        aliases=["relight"],
+        help="relighting metrics on held-out procedural materials (Table 1 style; "
+        "'relight' is the deprecated old name)",
         description="Relight held-out procedural materials from their flash photo to the 7 evaluation "
         "lights with each method; writes relight_eval.md (table), relight_eval.json (per-image values) "
         "and relight_eval.png (pictures).",
@@ -62,8 +81,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--overwrite", action="store_true", help="replace an output folder written by this command")
     r.set_defaults(run=run)
     e = what.add_parser(
-        "estimator",
-        help="SVBRDF estimator metrics, 1 vs 8 inputs, with and without refinement (Table 2 style)",
+        "estimation",
+        aliases=["estimator"],
+        help="SVBRDF estimator metrics, 1 vs 8 inputs, with and without refinement (Table 2 style; "
+        "'estimator' is the deprecated old name)",
         description="Held-out procedural materials, 1 input (flash) and 8 (flash + 7 renders), each "
         "with and without refinement: map MSE and re-rendered PSNR/SSIM under 16 held-out lights, "
         "plus diffuse error inside the highlight on the most specular third.",
@@ -78,6 +99,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run_estimator(args) -> int:
+    _note_deprecated(args)
     from estimator.evaluate import cli
     from matcap.estimate import DEFAULT_ESTIMATOR
 
@@ -153,6 +175,7 @@ def run(args) -> int:
     from relight.evaluate import EvalConfig, evaluate, format_table, write_report
     from relight.interface import get_relighter, relighter_names
 
+    _note_deprecated(args)
     register()  # the estimator's 1-input maps re-rendered: a Table-1 baseline
 
     steps = _steps_list(args.steps)  # before any model is loaded

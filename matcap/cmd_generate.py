@@ -81,15 +81,15 @@ def run(args) -> int:
     from relight.interface import get_relighter
 
     register()
-    camera = torch.tensor(parse_position(args.camera, "--camera"))
-    lights = positions_or_default(args.light, torch.tensor(EVAL_LIGHTS, dtype=torch.float32), "--light")
+    camera_pos = torch.tensor(parse_position(args.camera, "--camera"))
+    light_pos = positions_or_default(args.light, torch.tensor(EVAL_LIGHTS, dtype=torch.float32), "--light")
     photo = read_photo(args.photo)
     if photo.shape[0] != 3:
         raise UsageError(f"photo {str(args.photo)!r} has {photo.shape[0]} channel(s); expected 3 (RGB)")
     relighter = get_relighter(args.model, args.checkpoint)
     set_sampling(relighter, args.model, args.steps, args.samples)
     gen = torch.Generator().manual_seed(args.seed)
-    relit = relighter.relight(photo[None], camera[None], lights[None], generator=gen)[0]
+    relit = relighter.relight(photo[None], light_pos[None], camera_pos[None], generator=gen)[0]
     with atomic_folder(args.out, overwrite=args.overwrite, marker=GENERATE_MARKER) as tmp:
         files = []
         for k, image in enumerate(relit):
@@ -99,8 +99,8 @@ def run(args) -> int:
             "photo": str(args.photo),
             "model": args.model,
             "checkpoint": str(args.checkpoint) if args.checkpoint else "shipped",
-            "camera": camera.tolist(),
-            "lights": lights.tolist(),
+            "camera": camera_pos.tolist(),
+            "lights": light_pos.tolist(),
             "seed": args.seed,
             "steps": getattr(relighter, "steps", None),
             "samples": getattr(relighter, "num_samples", None),

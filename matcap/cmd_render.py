@@ -63,9 +63,9 @@ def _material(args) -> tuple[Material, dict]:
 
 def run(args) -> int:
     material, provenance = _material(args)
-    camera = torch.tensor(parse_position(args.camera, "--camera"))
-    light = positions_or_default(args.light, eval_lights()[0], "--light")
-    images = kernels.render(*(t[None] for t in material.map_tensors()), light, camera, preset=args.preset)[0]
+    camera_pos = torch.tensor(parse_position(args.camera, "--camera"))
+    light_pos = positions_or_default(args.light, eval_lights()[0], "--light")
+    images = kernels.render(*(t[None] for t in material.map_tensors()), light_pos, camera_pos, preset=args.preset)[0]
     with atomic_folder(args.out, overwrite=args.overwrite, marker=RENDER_MARKER) as tmp:
         for k, image in enumerate(images):
             write_image_pair(tmp, f"render_{k:02d}", image)
@@ -75,8 +75,8 @@ def run(args) -> int:
         write_png(tmp / "sheet.png", chw_to_hwc(contact_sheet(kernels.tonemap(images), columns=4)))
         info = {
             "preset": args.preset,
-            "camera": camera.tolist(),
-            "lights": light.tolist(),
+            "camera": camera_pos.tolist(),
+            "lights": light_pos.tolist(),
             "material": provenance,
             "files": [f"render_{k:02d}.exr" for k in range(len(images))],
         }

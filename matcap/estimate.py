@@ -71,7 +71,7 @@ def estimate_material(
     plane = capture.plane_size or preset.plane_size
     scale = model.config.plane_size / plane
     images = _to_multiple(capture.images, model.arch.downsample_factor)[None]
-    light, camera = capture.light_pos[None] * scale, capture.camera_pos[None] * scale
+    light_pos, camera_pos = capture.light_pos[None] * scale, capture.camera_pos[None] * scale
     history: list[float] = []
     if refine_steps > 0:
         # Refinement renders in model units with the capture's intensity and falloff;
@@ -82,8 +82,8 @@ def estimate_material(
         result = refine(
             model,
             images,
-            light,
-            camera,
+            light_pos,
+            camera_pos,
             steps=refine_steps,
             progress=progress,
             preset=preset,
@@ -93,5 +93,5 @@ def estimate_material(
         material, history = result.material, result.history
     else:
         with torch.no_grad():
-            material = model(images, light, camera)
+            material = model(images, light_pos, camera_pos)
     return _resize_material(material, capture.shape)[0], history

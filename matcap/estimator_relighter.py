@@ -37,16 +37,16 @@ class EstimatorRelighter(Relighter):
         self.model = model.eval()
         self.preset = preset
 
-    def _relight(self, photo, camera, lights, *, generator=None):
-        out, k = [], lights.shape[1]
+    def _relight(self, photo, light_pos, camera_pos, *, generator=None):
+        out, k = [], light_pos.shape[1]
         for b in range(photo.shape[0]):
-            cam = camera[b : b + 1].float()
+            cam = camera_pos[b : b + 1].float()
             capture = Capture(photo[b : b + 1].float(), cam, cam, preset=self.preset)
             material, _ = estimate_material(capture, self.model, progress=False)
             with torch.no_grad():
                 rendered = kernels.render(
                     *(t[None] for t in material.map_tensors()),
-                    lights[b : b + 1].float(),
+                    light_pos[b : b + 1].float(),
                     cam[:, None].expand(1, k, 3).contiguous(),
                     preset=self.preset,
                 )

@@ -92,10 +92,11 @@ def scale_and_crop(material: Material, size: int, generator: torch.Generator, mi
 
 
 def render_group(
-    material: Material, light: torch.Tensor, camera: torch.Tensor, preset: str = "dgrsise"
+    material: Material, light_pos: torch.Tensor, camera_pos: torch.Tensor, preset: str = "dgrsise"
 ) -> torch.Tensor:
-    """Render one unbatched material under V lights: ``[V, 3, H, W]`` linear radiance."""
-    return kernels.render(*(t[None] for t in material.map_tensors()), light, camera, preset=preset)[0]
+    """Render one unbatched material under V lights (``light_pos``, ``camera_pos``:
+    ``[V, 3]``): ``[V, 3, H, W]`` linear radiance."""
+    return kernels.render(*(t[None] for t in material.map_tensors()), light_pos, camera_pos, preset=preset)[0]
 
 
 class RenderedGroups(Dataset):
@@ -104,7 +105,7 @@ class RenderedGroups(Dataset):
     Item ``i`` is deterministic: material seed ``seeds[i]``, crop and lights from
     ``(config.seed, i)``. Returns a dict:
         ``images`` ``[V, 3, H, W]`` linear radiance (view 0: flash at the camera),
-        ``light`` / ``camera`` ``[V, 3]`` positions, ``maps`` ``[10, H, W]`` the ground
+        ``light_pos`` / ``camera_pos`` ``[V, 3]`` positions (scene units), ``maps`` ``[10, H, W]`` the ground
         truth (diffuse, normal, roughness, specular stacked; ``Material.from_stacked``),
         ``seed`` the material seed.
     """
@@ -131,12 +132,12 @@ class RenderedGroups(Dataset):
         cfg = self.config
         material = self.material(index)
         gen = torch.Generator().manual_seed(_item_seed(cfg.seed, index, stream=1))
-        light, camera = sample_paper_lights(cfg.views, gen)
-        images = render_group(material, light, camera, cfg.preset)
+        light_pos, camera_pos = sample_paper_lights(cfg.views, gen)
+        images = render_group(material, light_pos, camera_pos, cfg.preset)
         return {
             "images": images,
-            "light": light,
-            "camera": camera,
+            "light_pos": light_pos,
+            "camera_pos": camera_pos,
             "maps": material.stacked(),
             "seed": int(self.seeds[index]),
         }

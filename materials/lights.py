@@ -47,7 +47,7 @@ def _uniform(lo: float, hi: float, shape, generator: torch.Generator) -> torch.T
 def sample_paper_lights(views: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
     """One training group's positions (SPEC section 3), float32.
 
-    Returns (light ``[views, 3]``, camera ``[views, 3]``): the camera is at (0, 0, h)
+    Returns (light_pos ``[views, 3]``, camera_pos ``[views, 3]``): the camera is at (0, 0, h)
     for every view, h ~ U[4, 8]; view 0 is lit from the camera (the flash "input");
     views 1.. by lights with x, y ~ U[-4, 4], z ~ U[4, 8].
     """
@@ -64,7 +64,7 @@ def sample_paper_lights(views: int, generator: torch.Generator) -> tuple[torch.T
 
 
 def eval_lights(*, include_input: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
-    """The evaluation positions: (light, camera), each ``[V, 3]`` float32, with view 0
+    """The evaluation positions: (light_pos, camera_pos), each ``[V, 3]`` float32, with view 0
     the collocated input when ``include_input`` (V = 8), else the 7 targets (V = 7)."""
     targets = torch.tensor(EVAL_LIGHTS, dtype=torch.float32)
     light = torch.cat([torch.tensor([EVAL_CAMERA]), targets]) if include_input else targets

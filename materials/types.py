@@ -23,6 +23,8 @@ from dataclasses import dataclass, field, fields, replace
 
 import torch
 
+from kernels.checks import ShapeDims, check_above_plane, check_finite, check_shape
+
 __all__ = ["Material", "Capture", "MAP_CHANNELS", "MapError"]
 
 #: Channels of each map, in the canonical order used for stacking ([D, N, R, S] = 10).
@@ -44,17 +46,13 @@ class Material:
 
     def __post_init__(self) -> None:
         ref = self.diffuse
+        dims = ShapeDims()  # batch dims and H, W must agree across the maps
         for name, channels in MAP_CHANNELS.items():
             t = getattr(self, name)
-            if not isinstance(t, torch.Tensor):
-                raise TypeError(f"Material.{name} must be a torch.Tensor, got {type(t).__name__}")
-            if t.dim() < 3 or t.shape[-3] != channels:
-                raise MapError(f"Material.{name} must have shape [..., {channels}, H, W], got {tuple(t.shape)}")
-            if t.shape[:-3] != ref.shape[:-3] or t.shape[-2:] != ref.shape[-2:]:
-                raise MapError(
-                    f"Material.{name} has shape {tuple(t.shape)}, which does not match "
-                    f"diffuse {tuple(ref.shape)} (batch dims and H, W must agree)"
-                )
+            try:  # a non-tensor stays a TypeError; a shape error is a MapError
+                check_shape(t, f"*batch {channels} H W", name=f"Material.{name}", dims=dims, dtypes=None)
+            except ValueError as exc:
+                raise MapError(str(exc)) from None
             if t.device != ref.device or t.dtype != ref.dtype:
                 raise MapError(f"Material.{name} is {t.dtype} on {t.device}; diffuse is {ref.dtype} on {ref.device}")
 
@@ -169,19 +167,16 @@ class Capture:
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if not isinstance(self.images, torch.Tensor) or self.images.dim() != 4 or self.images.shape[1] != 3:
-            shape = tuple(self.images.shape) if isinstance(self.images, torch.Tensor) else type(self.images)
-            raise MapError(f"Capture.images must have shape [V, 3, H, W], got {shape}")
-        v = self.images.shape[0]
-        for name in ("light_pos", "camera_pos"):
-            t = getattr(self, name)
-            if not isinstance(t, torch.Tensor) or t.shape != (v, 3):
-                shape = tuple(t.shape) if isinstance(t, torch.Tensor) else type(t)
-                raise MapError(f"Capture.{name} must have shape [{v}, 3] (one per image), got {shape}")
-        if not torch.isfinite(self.images).all():
-            raise MapError("Capture.images holds NaN or inf values")
-        if (self.light_pos[:, 2] <= 0).any() or (self.camera_pos[:, 2] <= 0).any():
-            raise MapError("Capture light and camera positions must lie above the plane (z > 0)")
+        # Every problem with a capture, a non-tensor included, is a MapError (a ValueError).
+        try:
+            dims = check_shape(self.images, "V 3 H W", name="Capture.images", dtypes=None)
+            for name in ("light_pos", "camera_pos"):  # one position per image
+                check_shape(getattr(self, name), "V 3", name=f"Capture.{name}", dims=dims, dtypes=None)
+            check_finite(**{"Capture.images": self.images})
+            check_above_plane("Capture.light_pos", self.light_pos)
+            check_above_plane("Capture.camera_pos", self.camera_pos)
+        except (TypeError, ValueError) as exc:
+            raise MapError(str(exc)) from None
 
     @property
     def num_views(self) -> int:

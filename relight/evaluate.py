@@ -12,7 +12,7 @@ Protocol:
 3. Every method relights the same photos through ``relight.interface.Relighter``, in
    chunks of ``chunk`` materials; seconds per image = the wall time of the ``relight``
    calls / (materials x 7) (model loading excluded).
-4. Metrics (``relight.metrics``) on tone-mapped images (clamp, x^(1/2.2)), averaged over
+4. Metrics (``materials.metrics``) on tone-mapped images (clamp, x^(1/2.2)), averaged over
    all materials x lights: MSE, RMSE, PSNR, SSIM, FLIP; LPIPS is "n/a" unless its
    weights are present locally.
 5. Stochastic relighters (``stochastic = True``, e.g. diffusion) are run ``samples``
@@ -34,9 +34,9 @@ from pathlib import Path
 import torch
 
 import kernels
+from materials import metrics
 from materials.dataset import EVAL_SEEDS, GroupConfig, RenderedGroups
 from materials.lights import EVAL_CAMERA, EVAL_LIGHTS, eval_lights
-from relight import metrics
 from relight.interface import Relighter
 
 __all__ = [
@@ -82,30 +82,31 @@ class EvalConfig:
 @dataclass
 class EvalData:
     """Held-out photos and ground truth: ``photo [N, 3, H, W]``, ``target [N, 7, 3, H, W]``
-    (linear radiance), ``camera [N, 3]``, ``lights [N, 7, 3]``, material ``seeds``."""
+    (linear radiance), ``light_pos [N, 7, 3]`` (the targets' lights), ``camera_pos [N, 3]``
+    (camera and flash), material ``seeds``."""
 
     photo: torch.Tensor
     target: torch.Tensor
-    camera: torch.Tensor
-    lights: torch.Tensor
+    light_pos: torch.Tensor
+    camera_pos: torch.Tensor
     seeds: list[int] = field(default_factory=list)
 
 
 def load_eval_data(cfg: EvalConfig) -> EvalData:
     """Render the held-out materials under the input flash and the 7 evaluation lights."""
     groups = RenderedGroups(EVAL_SEEDS[: cfg.count], GroupConfig(size=cfg.size, seed=EVAL_CROP_SEED))
-    light, camera = eval_lights(include_input=True)  # [8, 3]: flash, then EVAL_LIGHTS
+    light_pos, camera_pos = eval_lights(include_input=True)  # [8, 3]: flash, then EVAL_LIGHTS
     images = []
     for i in range(cfg.count):
         m = groups.material(i)
-        images.append(kernels.render(*(t[None] for t in m.map_tensors()), light, camera)[0])
+        images.append(kernels.render(*(t[None] for t in m.map_tensors()), light_pos, camera_pos)[0])
     images = torch.stack(images)
     n = cfg.count
     return EvalData(
         photo=images[:, 0],
         target=images[:, 1:],
-        camera=torch.tensor(EVAL_CAMERA).expand(n, 3).clone(),
-        lights=light[1:].expand(n, -1, -1).clone(),
+        light_pos=light_pos[1:].expand(n, -1, -1).clone(),
+        camera_pos=torch.tensor(EVAL_CAMERA).expand(n, 3).clone(),
         seeds=[int(s) for s in EVAL_SEEDS[: cfg.count]],
     )
 
@@ -116,7 +117,7 @@ def _run(relighter: Relighter, data: EvalData, cfg: EvalConfig, sample: int) -> 
         sl = slice(start, start + cfg.chunk)
         gen = torch.Generator().manual_seed(cfg.seed * 1000 + sample * 100 + start)
         t0 = time.perf_counter()
-        out = relighter.relight(data.photo[sl], data.camera[sl], data.lights[sl], generator=gen)
+        out = relighter.relight(data.photo[sl], data.light_pos[sl], data.camera_pos[sl], generator=gen)
         seconds += time.perf_counter() - t0
         outs.append(out)
     return torch.cat(outs), seconds
@@ -157,7 +158,7 @@ def evaluate(relighters: dict[str, Relighter], cfg: EvalConfig = EvalConfig(), d
             row.update({m: sum(v) / len(v) for m, v in per_image.items()})
             # Table 1 averages PSNR per image; PSNR of the mean MSE (never higher, by
             # Jensen) is what a single pooled error gives, reported beside it.
-            row["PSNR_of_mean_MSE"] = float(-10 * torch.log10(torch.tensor(max(row["MSE"], metrics.MSE_FLOOR))))
+            row["PSNR_of_mean_MSE"] = float(metrics.psnr_from_mse(row["MSE"]))
             row["LPIPS"] = None
             row["seconds_per_image"] = seconds / (runs * n * k)
             row["per_image"] = per_image

@@ -2,20 +2,21 @@
 
 One call relights B flash photos to K target lights each::
 
-    relit = relighter.relight(photo, camera, lights)          # [B, K, 3, H, W]
+    relit = relighter.relight(photo, light_pos, camera_pos)   # [B, K, 3, H, W]
 
 - ``photo``: ``[B, 3, H, W]`` linear radiance (not tone-mapped), lit by a point light at
   the camera (the phone flash; SPEC section 1), float32 or float64, finite, >= 0.
-- ``camera``: ``[B, 3]`` camera positions (also the input light), scene units of the
+- ``light_pos``: ``[B, K, 3]`` target point-light positions, scene units of the
   ``dgrsise`` preset (plane of side 4 at z = 0; SPEC section 2), above the plane.
-- ``lights``: ``[B, K, 3]`` target point-light positions, above the plane; the camera
-  does not move.
+- ``camera_pos``: ``[B, 3]`` camera positions (also the input light: the flash), above
+  the plane; the camera does not move.
 - returns ``[B, K, 3, H, W]`` linear radiance, same dtype and device as ``photo``.
 - ``generator``: a ``torch.Generator`` for stochastic relighters (diffusion); the
   deterministic ones ignore it.
 
-``Relighter.relight`` validates once at this boundary (``ValueError`` / ``TypeError``
-naming the argument) and then calls the subclass's ``_relight`` with valid inputs.
+``Relighter.relight`` validates once at this boundary (``kernels.checks``: ``ValueError`` /
+``TypeError`` naming the argument) and then calls the subclass's ``_relight`` with valid
+inputs, positions cast to the photo's dtype.
 
 Registry: ``get_relighter(name, checkpoint=None)`` builds a relighter by name;
 ``register_relighter(name, factory)`` adds one, ``relighter_names()`` lists them. A name
@@ -40,6 +41,7 @@ from pathlib import Path
 import torch
 
 import kernels
+from kernels.checks import check_above_plane, check_finite, check_same, check_shape
 from kernels.presets import RenderPreset, get_preset
 from relight.shading import lambertian_relight
 
@@ -58,57 +60,31 @@ __all__ = [
 #: Package folder of the shipped checkpoints (``<name>/config.json`` + safetensors).
 SHIPPED_WEIGHTS = Path(__file__).resolve().parent / "weights"
 
-_FLOATS = (torch.float32, torch.float64)
 
-
-def _check_positions(name: str, pos, shape: tuple, ref: torch.Tensor) -> None:
-    if not isinstance(pos, torch.Tensor):
-        raise TypeError(f"{name} must be a torch.Tensor, got {type(pos).__name__}")
-    if pos.dtype not in _FLOATS:
-        raise TypeError(f"{name} must be float32 or float64, got {pos.dtype}")
-    if tuple(pos.shape) != shape:
-        dims = "[B, 3]" if len(shape) == 2 else "[B, K, 3]"
-        raise ValueError(f"{name} must have shape {dims} = {shape}, got {tuple(pos.shape)}")
-    if pos.device != ref.device:
-        raise ValueError(f"{name} is on {pos.device} but photo is on {ref.device}; use one device")
-    if not bool(torch.isfinite(pos).all()):
-        raise ValueError(f"{name} holds NaN or inf values")
-    if bool((pos[..., 2] <= 0).any()):
-        raise ValueError(f"{name} has a position on or below the material plane (z must be > 0)")
-
-
-def check_relight_inputs(photo, camera, lights) -> tuple[int, int, int, int]:
+def check_relight_inputs(photo, light_pos, camera_pos) -> tuple[int, int, int, int]:
     """Validate a ``relight`` call (module docstring); return (B, K, H, W).
 
     Raises:
-        TypeError: a non-tensor or a non-float dtype.
-        ValueError: a wrong shape or channel count, NaN/inf, negative radiance, a light
-            or camera on or below the plane, or mismatched devices; naming the argument.
+        TypeError: a non-tensor or a dtype other than float32/float64.
+        ValueError: a wrong shape (the message gives the expected symbolic shape), NaN or
+            inf, negative radiance, a light or camera on or below the plane, or
+            mismatched devices; naming the argument.
     """
-    if not isinstance(photo, torch.Tensor):
-        raise TypeError(f"photo must be a torch.Tensor, got {type(photo).__name__}")
-    if photo.dtype not in _FLOATS:
-        raise TypeError(f"photo must be float32 or float64, got {photo.dtype}")
-    if photo.dim() != 4:
-        raise ValueError(f"photo must have shape [B, 3, H, W], got {tuple(photo.shape)}")
-    b, c, h, w = photo.shape
-    if c != 3:
-        raise ValueError(f"photo must have 3 (RGB) channels at dim 1, got {c} (shape {tuple(photo.shape)})")
-    if b == 0 or h == 0 or w == 0:
+    dims = check_shape(photo, "B 3 H W", name="photo")
+    if photo.numel() == 0:
         raise ValueError(f"photo must be non-empty, got shape {tuple(photo.shape)}")
-    if not bool(torch.isfinite(photo).all()):
-        raise ValueError("photo holds NaN or inf values")
+    check_finite(photo=photo)
     if bool((photo < 0).any()):
         raise ValueError("photo holds negative values; expected linear radiance >= 0")
-    if not isinstance(lights, torch.Tensor) or lights.dim() != 3:
-        shape = tuple(lights.shape) if isinstance(lights, torch.Tensor) else type(lights).__name__
-        raise ValueError(f"lights must have shape [B, K, 3], got {shape}")
-    k = lights.shape[1]
-    if k == 0:
-        raise ValueError("lights must hold at least one target light (K >= 1)")
-    _check_positions("camera", camera, (b, 3), photo)
-    _check_positions("lights", lights, (b, k, 3), photo)
-    return b, k, h, w
+    check_shape(light_pos, "B K 3", name="light_pos", dims=dims)
+    if dims["K"] == 0:
+        raise ValueError("light_pos must hold at least one target light (K >= 1)")
+    check_shape(camera_pos, "B 3", name="camera_pos", dims=dims)
+    check_same("photo", photo, dtype=False, light_pos=light_pos, camera_pos=camera_pos)
+    check_finite(light_pos=light_pos, camera_pos=camera_pos)
+    check_above_plane("light_pos", light_pos)
+    check_above_plane("camera_pos", camera_pos)
+    return dims["B"], dims["K"], dims["H"], dims["W"]
 
 
 class Relighter(ABC):
@@ -124,21 +100,22 @@ class Relighter(ABC):
     def relight(
         self,
         photo: torch.Tensor,
-        camera: torch.Tensor,
-        lights: torch.Tensor,
+        light_pos: torch.Tensor,
+        camera_pos: torch.Tensor,
         *,
         generator: torch.Generator | None = None,
     ) -> torch.Tensor:
-        """Relight ``photo [B, 3, H, W]`` (linear, flash at ``camera [B, 3]``) to
-        ``lights [B, K, 3]``: ``[B, K, 3, H, W]`` linear radiance (module docstring)."""
-        b, k, h, w = check_relight_inputs(photo, camera, lights)
-        out = self._relight(photo, camera.to(photo.dtype), lights.to(photo.dtype), generator=generator)
+        """Relight ``photo [B, 3, H, W]`` (linear, flash at ``camera_pos [B, 3]``) to the
+        point lights ``light_pos [B, K, 3]``: ``[B, K, 3, H, W]`` linear radiance, the
+        photo's dtype and device (module docstring)."""
+        b, k, h, w = check_relight_inputs(photo, light_pos, camera_pos)
+        out = self._relight(photo, light_pos.to(photo.dtype), camera_pos.to(photo.dtype), generator=generator)
         if tuple(out.shape) != (b, k, 3, h, w):
             raise RuntimeError(f"{type(self).__name__} returned {tuple(out.shape)}, expected {(b, k, 3, h, w)}")
         return out
 
     @abstractmethod
-    def _relight(self, photo, camera, lights, *, generator=None) -> torch.Tensor: ...
+    def _relight(self, photo, light_pos, camera_pos, *, generator=None) -> torch.Tensor: ...
 
 
 class InputRelighter(Relighter):
@@ -146,8 +123,8 @@ class InputRelighter(Relighter):
 
     name = "input"
 
-    def _relight(self, photo, camera, lights, *, generator=None):
-        return photo[:, None].expand(-1, lights.shape[1], -1, -1, -1).clone()
+    def _relight(self, photo, light_pos, camera_pos, *, generator=None):
+        return photo[:, None].expand(-1, light_pos.shape[1], -1, -1, -1).clone()
 
 
 class LambertianRelighter(Relighter):
@@ -164,8 +141,8 @@ class LambertianRelighter(Relighter):
     def __init__(self, preset: str | RenderPreset = "dgrsise"):
         self.preset = get_preset(preset)
 
-    def _relight(self, photo, camera, lights, *, generator=None):
-        return lambertian_relight(photo, camera, lights, self.preset)
+    def _relight(self, photo, light_pos, camera_pos, *, generator=None):
+        return lambertian_relight(photo, light_pos, camera_pos, self.preset)
 
 
 class NetworkRelighter(Relighter):
@@ -179,7 +156,7 @@ class NetworkRelighter(Relighter):
     def __init__(self, model):
         self.model = model.eval()
 
-    def _relight(self, photo, camera, lights, *, generator=None):
+    def _relight(self, photo, light_pos, camera_pos, *, generator=None):
         m = self.model.size_multiple
         h, w = photo.shape[-2:]
         ph, pw = (-h) % m, (-w) % m
@@ -191,7 +168,7 @@ class NetworkRelighter(Relighter):
             # plane positions only approximately; sizes that are multiples avoid it.
             x = torch.nn.functional.pad(x, (0, pw, 0, ph), mode="replicate")
         with torch.no_grad():
-            y = self.model(x, camera.to(device, dtype), lights.to(device, dtype))
+            y = self.model(x, light_pos.to(device, dtype), camera_pos.to(device, dtype))
         y = y[..., :h, :w]
         return kernels.inverse_tonemap(y.clamp(0, 1)).to(photo.device, photo.dtype)
 

@@ -39,18 +39,18 @@ def plane_shading(pos: torch.Tensor, h: int, w: int, preset: RenderPreset) -> to
 
 
 def lambertian_relight(
-    photo: torch.Tensor, camera: torch.Tensor, lights: torch.Tensor, preset: RenderPreset
+    photo: torch.Tensor, light_pos: torch.Tensor, camera_pos: torch.Tensor, preset: RenderPreset
 ) -> torch.Tensor:
     """Relight flash photos as if they were Lambertian.
 
     Args:
-        photo: ``[B, 3, H, W]`` linear radiance, lit by a flash at ``camera``.
-        camera: ``[B, 3]`` camera (= flash) positions.
-        lights: ``[B, K, 3]`` target light positions (camera unchanged).
+        photo: ``[B, 3, H, W]`` linear radiance, lit by a flash at ``camera_pos``.
+        light_pos: ``[B, K, 3]`` target light positions (camera unchanged).
+        camera_pos: ``[B, 3]`` camera (= flash) positions.
         preset: scene conventions (plane size, falloff).
     Returns:
         ``[B, K, 3, H, W]`` linear radiance.
     """
     h, w = photo.shape[-2:]
-    ratio = plane_shading(lights, h, w, preset) / plane_shading(camera[:, None], h, w, preset)
+    ratio = plane_shading(light_pos, h, w, preset) / plane_shading(camera_pos[:, None], h, w, preset)
     return photo[:, None] * ratio

@@ -29,13 +29,13 @@ for abl in wo_prior ori_ctrlnet; do
         --resolution 64 --groups-per-step 1 --lr 2e-4 --seed 0 --ckpt-every 50 --ablation "$abl" --threads 2 \
         > "$ckpt/log.txt" 2>&1
     date -u +%FT%TZ > "$ckpt/ENDED"
-    "$PYTHON" -m matcap.cli eval relight --out "$OUT_ROOT/abl_$abl" --count 16 --methods diffusion \
+    "$PYTHON" -m matcap.cli eval relighting --out "$OUT_ROOT/abl_$abl" --count 16 --methods diffusion \
         --checkpoint "diffusion=$ckpt/latest/model" --samples 1 --overwrite
 done
 
 full="$CKPT_ROOT/relight_v3/step_000600/model"
 if [ -d "$full" ]; then
-    "$PYTHON" -m matcap.cli eval relight --out "$OUT_ROOT/abl_full600" --count 16 --methods input,diffusion \
+    "$PYTHON" -m matcap.cli eval relighting --out "$OUT_ROOT/abl_full600" --count 16 --methods input,diffusion \
         --checkpoint "diffusion=$full" --samples 1 --overwrite
 else
     echo "no $full: the full row is not evaluated" >&2

@@ -52,12 +52,12 @@ def test_estimate_bad_capture_is_clear(tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
-def test_eval_estimator_command(tmp_path):
+def test_eval_estimation_command(tmp_path):
     out = tmp_path / "eval"
     code = main(
         [
             "eval",
-            "estimator",
+            "estimation",
             "--model",
             str(_tiny_model(tmp_path)),
             "--num",

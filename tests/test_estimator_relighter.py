@@ -24,38 +24,38 @@ def tiny_estimator(tmp_path_factory):
 def _inputs(size=32, k=3):
     gen = torch.Generator().manual_seed(1)
     photo = torch.rand(2, 3, size, size, generator=gen)
-    camera = torch.tensor([[0.0, 0.0, 4.0], [0.5, -0.5, 4.5]])
-    lights = torch.tensor([[1.0, 1.0, 4.0], [-2.0, 0.5, 5.0], [0.0, -1.5, 3.0]][:k]).expand(2, k, 3).contiguous()
-    return photo, camera, lights
+    light_pos = torch.tensor([[1.0, 1.0, 4.0], [-2.0, 0.5, 5.0], [0.0, -1.5, 3.0]][:k]).expand(2, k, 3).contiguous()
+    camera_pos = torch.tensor([[0.0, 0.0, 4.0], [0.5, -0.5, 4.5]])
+    return photo, light_pos, camera_pos
 
 
 def test_renders_the_maps_estimated_from_the_flash_photo(tiny_estimator):
     register()
     relighter = get_relighter("estimator", tiny_estimator)
     assert isinstance(relighter, EstimatorRelighter) and not relighter.stochastic
-    photo, camera, lights = _inputs()
-    out = relighter.relight(photo, camera, lights)
+    photo, light_pos, camera_pos = _inputs()
+    out = relighter.relight(photo, light_pos, camera_pos)
     assert out.shape == (2, 3, 3, 32, 32) and out.dtype == photo.dtype
     # the same thing by hand, per photo: one view lit from the camera, then the renderer
     model = SVBRDFEstimator.from_pretrained(tiny_estimator).eval()
     for b in range(2):
         with torch.no_grad():
-            maps = model(photo[b, None, None], camera[b, None, None], camera[b, None, None])
-            want = kernels.render(*maps.map_tensors(), lights[b, None], camera[b].expand(1, 3, 3).contiguous())
+            maps = model(photo[b, None, None], camera_pos[b, None, None], camera_pos[b, None, None])
+            want = kernels.render(*maps.map_tensors(), light_pos[b, None], camera_pos[b].expand(1, 3, 3).contiguous())
         torch.testing.assert_close(out[b], want[0], rtol=0, atol=0)
-    assert torch.equal(relighter.relight(photo, camera, lights), out)  # deterministic
+    assert torch.equal(relighter.relight(photo, light_pos, camera_pos), out)  # deterministic
 
 
 def test_bad_input_is_refused_at_the_boundary(tiny_estimator):
     register()
     relighter = get_relighter("estimator", tiny_estimator)
-    photo, camera, lights = _inputs()
-    below = lights.clone()
+    photo, light_pos, camera_pos = _inputs()
+    below = light_pos.clone()
     below[0, 1, 2] = -1.0
-    with pytest.raises(ValueError, match="lights"):
-        relighter.relight(photo, camera, below)
-    with pytest.raises(ValueError):
-        relighter.relight(photo[:, :2], camera, lights)
+    with pytest.raises(ValueError, match="light_pos has a position on or below"):
+        relighter.relight(photo, below, camera_pos)
+    with pytest.raises(ValueError, match=r"photo must have shape \[B, 3, H, W\]"):
+        relighter.relight(photo[:, :2], light_pos, camera_pos)
 
 
 def test_missing_checkpoint_is_a_clear_error(tmp_path):
@@ -64,11 +64,11 @@ def test_missing_checkpoint_is_a_clear_error(tmp_path):
         get_relighter("estimator", tmp_path)
 
 
-def test_eval_relight_has_an_estimator_row(tmp_path, tiny_estimator):
+def test_eval_relighting_has_an_estimator_row(tmp_path, tiny_estimator):
     out = tmp_path / "e"
     argv = [
         "eval",
-        "relight",
+        "relighting",
         "--count",
         "1",
         "--size",

@@ -28,7 +28,8 @@ paper's description at the size this CPU can train; issue 6):
 5. **Analytic base** (``residual="lambertian"``; our addition, not in Bieron et al.;
    the training default, while the class default ``"none"`` keeps the plain network): the decoder predicts a correction to ``tonemap`` of the Lambertian
    re-shading of the photo, ``photo * l_z(target) / l_z(input)`` (flat normal, diffuse
-   term only, no falloff as in ``dgrsise``: the ``relight.interface`` baseline), which
+   term only, no falloff as in ``dgrsise``: ``relight.shading.lambertian_relight``, the
+   ``lambertian`` baseline of ``relight.interface``), which
    it also sees as 3 extra channels at full resolution; the output conv is
    zero-initialised, so the untrained network *is* that baseline. Measured here (issue 6
    run, 157 steps of the plain variant): the plain network was 1-2 dB better than the
@@ -49,11 +50,12 @@ from diffusers.configuration_utils import ConfigMixin, register_to_config
 from diffusers.models.modeling_utils import ModelMixin
 
 import kernels
+from kernels.presets import get_preset
+from relight.shading import lambertian_relight
 
 __all__ = [
     "BieronRelighter",
     "encode_photo",
-    "lambertian_base",
     "LOG_SHIFT",
     "LOG_SCALE",
     "INPUT_CHANNELS",
@@ -70,14 +72,10 @@ LOG_SCALE = 0.5
 INPUT_CHANNELS = 7
 #: Decoder conditioning: unit l, v, h vectors per pixel (``kernels.lvh_maps``).
 LVH_CHANNELS = 9
-#: Channel index of v_z in the l/v/h map (v occupies channels 3-5), and of l_z.
+#: Channel index of v_z in the l/v/h map (v occupies channels 3-5).
 _VZ = 5
-_LZ = 2
 #: Output parameterisations (module docstring, steps 4 and 5).
 RESIDUALS = ("lambertian", "none")
-#: Smallest cosine divided by in the re-shading: the plane never faces the camera at
-#: grazing angles here (z > 0, plane of side 4), this only guards the division.
-_MIN_COS = 1e-4
 
 
 def encode_photo(photo: torch.Tensor, vz: torch.Tensor) -> torch.Tensor:
@@ -85,13 +83,6 @@ def encode_photo(photo: torch.Tensor, vz: torch.Tensor) -> torch.Tensor:
     per-pixel view z ``[B, 1, H, W]`` (see the module docstring, step 1)."""
     log = (torch.log(photo.clamp_min(0) + kernels.LOG_EPS) + LOG_SHIFT) * LOG_SCALE
     return torch.cat([kernels.tonemap(photo), log, vz], dim=1)
-
-
-def lambertian_base(photo: torch.Tensor, vz: torch.Tensor, lvh: torch.Tensor) -> torch.Tensor:
-    """Lambertian re-shading ``[B, K, 3, H, W]`` (linear) of ``photo [B, 3, H, W]`` lit from
-    the camera (per-pixel cosine ``vz [B, 1, H, W]``) to targets with l/v/h maps
-    ``lvh [B, K, 9, H, W]``: ``photo * l_z / v_z`` (flat normal, no falloff)."""
-    return photo[:, None] * lvh[:, :, _LZ : _LZ + 1] / vz[:, None].clamp_min(_MIN_COS)
 
 
 def _groups(channels: int, wanted: int) -> int:
@@ -141,9 +132,9 @@ class BieronRelighter(ModelMixin, ConfigMixin):
         >>> import torch
         >>> net = BieronRelighter(base_channels=8, channel_mults=(1, 2), norm_groups=4)
         >>> photo = torch.rand(2, 3, 16, 16)
-        >>> camera = torch.tensor([[0.0, 0.0, 4.0]]).expand(2, 3)
-        >>> lights = torch.tensor([[[1.0, 1.0, 4.0], [-1.0, 0.0, 5.0], [0.0, 2.0, 6.0]]]).expand(2, 3, 3)
-        >>> net(photo, camera, lights).shape
+        >>> light_pos = torch.tensor([[[1.0, 1.0, 4.0], [-1.0, 0.0, 5.0], [0.0, 2.0, 6.0]]]).expand(2, 3, 3)
+        >>> camera_pos = torch.tensor([[0.0, 0.0, 4.0]]).expand(2, 3)
+        >>> net(photo, light_pos, camera_pos).shape
         torch.Size([2, 3, 3, 16, 16])
     """
 
@@ -203,9 +194,9 @@ class BieronRelighter(ModelMixin, ConfigMixin):
         """H and W must be multiples of this."""
         return 2 ** (len(self.widths) - 1)
 
-    def _view_z(self, camera: torch.Tensor, photo: torch.Tensor) -> torch.Tensor:
+    def _view_z(self, camera_pos: torch.Tensor, photo: torch.Tensor) -> torch.Tensor:
         """Per-pixel z of the unit view (= input light) direction, ``[B, 1, H, W]``."""
-        cam = camera.to(photo)[:, None]
+        cam = camera_pos.to(photo)[:, None]
         lvh = kernels.lvh_maps(cam, cam, tuple(photo.shape[-2:]), plane_size=self.config.plane_size)
         return lvh[:, 0, _VZ : _VZ + 1]
 
@@ -239,13 +230,13 @@ class BieronRelighter(ModelMixin, ConfigMixin):
         out = self.conv_out(F.silu(self.norm_out(x))).view(b, k, 3, h, w)
         return out + base if base is not None else out
 
-    def forward(self, photo: torch.Tensor, camera: torch.Tensor, lights: torch.Tensor) -> torch.Tensor:
+    def forward(self, photo: torch.Tensor, light_pos: torch.Tensor, camera_pos: torch.Tensor) -> torch.Tensor:
         """Relight B photos to K lights each.
 
         Args:
             photo: ``[B, 3, H, W]`` linear radiance, lit by a point light at the camera.
-            camera: ``[B, 3]`` camera (and input light) positions, scene units.
-            lights: ``[B, K, 3]`` target light positions (the camera stays where it is).
+            light_pos: ``[B, K, 3]`` target light positions (the camera stays where it is).
+            camera_pos: ``[B, 3]`` camera (and input light) positions, scene units.
         Returns:
             ``[B, K, 3, H, W]`` predicted *tone-mapped* images, unclamped (the training
             target is ``kernels.tonemap`` of the relit radiance). Inputs are assumed valid;
@@ -255,11 +246,15 @@ class BieronRelighter(ModelMixin, ConfigMixin):
         m = self.size_multiple
         if h % m or w % m:
             raise ValueError(f"photo H and W must be multiples of {m} for this network, got {h}x{w}")
-        k = lights.shape[1]
-        cam = camera.to(photo)[:, None].expand(b, k, 3)
-        lvh = kernels.lvh_maps(lights.to(photo), cam, (h, w), plane_size=self.config.plane_size)
-        vz = self._view_z(camera, photo)
+        k = light_pos.shape[1]
+        light_pos, camera_pos = light_pos.to(photo), camera_pos.to(photo)
+        lvh = kernels.lvh_maps(
+            light_pos, camera_pos[:, None].expand(b, k, 3), (h, w), plane_size=self.config.plane_size
+        )
+        vz = self._view_z(camera_pos, photo)
         base = None
         if self.config.residual == "lambertian":
-            base = kernels.tonemap(lambertian_base(photo, vz, lvh))
+            # The training groups are rendered with the dgrsise preset (falloff 1).
+            preset = get_preset("dgrsise").with_overrides(plane_size=self.config.plane_size)
+            base = kernels.tonemap(lambertian_relight(photo, light_pos, camera_pos, preset))
         return self.decode(self.encode(photo, vz), lvh, base)

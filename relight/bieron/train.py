@@ -97,7 +97,7 @@ class TrainConfig:
 
 
 def sample_batch(data: RenderedGroups, cfg: TrainConfig, step: int, process: int = 0) -> dict:
-    """The batch of ``step``: ``photo [B, 3, H, W]``, ``camera [B, 3]``, ``lights [B, T, 3]``,
+    """The batch of ``step``: ``photo [B, 3, H, W]``, ``light_pos [B, T, 3]``, ``camera_pos [B, 3]``,
     ``target [B, T, 3, H, W]`` (linear radiance), deterministic in (seed, step, process)."""
     gen = torch.Generator().manual_seed((cfg.seed * 1_000_003 + step) * 64 + process)
     index = torch.randint(0, len(data), (cfg.batch,), generator=gen)
@@ -105,15 +105,15 @@ def sample_batch(data: RenderedGroups, cfg: TrainConfig, step: int, process: int
     views = torch.stack([torch.randperm(7, generator=gen)[: cfg.targets_per_group] + 1 for _ in items])
     return {
         "photo": torch.stack([it["images"][0] for it in items]),
-        "camera": torch.stack([it["camera"][0] for it in items]),
-        "lights": torch.stack([it["light"][v] for it, v in zip(items, views)]),
+        "light_pos": torch.stack([it["light_pos"][v] for it, v in zip(items, views)]),
+        "camera_pos": torch.stack([it["camera_pos"][0] for it in items]),
         "target": torch.stack([it["images"][v] for it, v in zip(items, views)]),
     }
 
 
 def training_loss(model, batch: dict) -> torch.Tensor:
     """Mean L1 between the prediction and the tone-mapped target (module docstring)."""
-    pred = model(batch["photo"], batch["camera"], batch["lights"])
+    pred = model(batch["photo"], batch["light_pos"], batch["camera_pos"])
     return (pred - kernels.tonemap(batch["target"])).abs().mean()
 
 

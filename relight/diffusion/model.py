@@ -3,7 +3,7 @@ condition encoder (BCE + translated specular prior) and light/view tokens.
 
 Data flow for N target images (SPEC section 4):
 
-    photo, background photos, light/camera --> ConditionEncoder --> [N, C, h, w]
+    photo, background photos, light_pos/camera_pos --> ConditionEncoder --> [N, C, h, w]
         (replaces ControlNet's conditioning embedding: added to its conv_in output)
     l/v/h maps of the targets --> LightTokenEncoder --> [N, L, D] light tokens
     [null text | light tokens] --> decoupled cross-attention in UNet and ControlNet
@@ -149,8 +149,8 @@ class RelightDiffusion(nn.Module):
         self,
         photo: torch.Tensor,
         background: torch.Tensor,
-        light: torch.Tensor,
-        camera: torch.Tensor,
+        light_pos: torch.Tensor,
+        camera_pos: torch.Tensor,
         permutation: torch.Tensor | None = None,
         base_x: torch.Tensor | None = None,
     ) -> Condition:
@@ -159,31 +159,33 @@ class RelightDiffusion(nn.Module):
         Args:
             photo: ``[N, 3, H, W]`` linear flash photo (per target).
             background: ``[N, 3, H, W]`` linear photos for the BCE (the photo at inference).
-            light, camera: ``[N, 3]`` target light and camera positions.
+            light_pos, camera_pos: ``[N, 3]`` target light and camera positions.
             permutation: training-time shuffle of BCE features (``shuffle_within_groups``).
-            base_x: ``residual_base(photo, light, camera)`` when the caller already has it
+            base_x: ``residual_base(photo, light_pos, camera_pos)`` when the caller already has it
                 (training: the objective needs it for the target too); None computes it.
         Returns:
             ``Condition`` (features, encoder states ``[N, T + L, D]``, residual base).
         """
-        offsets = kernels.highlight_offsets(camera, light, self.config.plane_size, self.feature_size())
+        offsets = kernels.highlight_offsets(light_pos, camera_pos, self.config.plane_size, self.feature_size())
         feats = self.condition(background, photo, offsets, permutation)
-        lvh = kernels.lvh_maps(light[:, None], camera[:, None], photo.shape[-2:], plane_size=self.config.plane_size)
+        lvh = kernels.lvh_maps(
+            light_pos[:, None], camera_pos[:, None], photo.shape[-2:], plane_size=self.config.plane_size
+        )
         tokens = self.light_tokens(lvh[:, 0])
         states = torch.cat([self.text_embeds.expand(tokens.shape[0], -1, -1), tokens], dim=1)
         if base_x is None:
-            base_x = self.residual_base(photo, light, camera)
+            base_x = self.residual_base(photo, light_pos, camera_pos)
         return Condition(feats, states, base_x)
 
-    def residual_base(self, photo: torch.Tensor, light: torch.Tensor, camera: torch.Tensor) -> torch.Tensor:
+    def residual_base(self, photo: torch.Tensor, light_pos: torch.Tensor, camera_pos: torch.Tensor) -> torch.Tensor:
         """What ``residual`` and ``photo_concat`` use as the photo, in model space ``[N, 3, H, W]``:
         the tone-mapped photo, or (``base="lambertian"``) its Lambertian relighting under
-        ``light`` ``[N, 3]``, tone-mapped."""
+        ``light_pos`` ``[N, 3]`` (camera ``camera_pos`` ``[N, 3]``), tone-mapped."""
         if self.config.base == "lambertian":
             # The training groups are rendered with the dgrsise preset (falloff 1); a
             # model for another preset's data would need the falloff in its config.
             preset = get_preset("dgrsise").with_overrides(plane_size=self.config.plane_size)
-            photo = lambertian_relight(photo, camera, light[:, None], preset)[:, 0]
+            photo = lambertian_relight(photo, light_pos[:, None], camera_pos, preset)[:, 0]
         return self.tonemapped(photo)
 
     def unet_input(self, x_t: torch.Tensor, base_x: torch.Tensor) -> torch.Tensor:
@@ -211,15 +213,17 @@ class RelightDiffusion(nn.Module):
         t: torch.Tensor,
         photo: torch.Tensor,
         background: torch.Tensor,
-        light: torch.Tensor,
-        camera: torch.Tensor,
+        light_pos: torch.Tensor,
+        camera_pos: torch.Tensor,
         permutation: torch.Tensor | None = None,
         base_x: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Training forward: condition + denoise in one call, so a DistributedDataParallel
         wrapper sees (and synchronises) every gradient. Shapes as in ``encode_condition``
         and ``denoise``; returns the v-prediction ``[N, 3, H, W]``."""
-        return self.denoise(x_t, t, *self.encode_condition(photo, background, light, camera, permutation, base_x))
+        return self.denoise(
+            x_t, t, *self.encode_condition(photo, background, light_pos, camera_pos, permutation, base_x)
+        )
 
     # ------------------------------------------------------------------ image space
     @staticmethod

@@ -20,8 +20,8 @@ def diffusion_loss(
 ) -> torch.Tensor:
     """v-prediction MSE for a batch of groups (SPEC section 4).
 
-    ``batch``: ``images [B, V, 3, H, W]`` linear (view 0: the flash photo), ``light`` /
-    ``camera`` ``[B, V, 3]``. Every view of a group is a target; all are conditioned on
+    ``batch``: ``images [B, V, 3, H, W]`` linear (view 0: the flash photo), ``light_pos`` /
+    ``camera_pos`` ``[B, V, 3]``. Every view of a group is a target; all are conditioned on
     the group's flash photo (specular prior) and on background features of the group's
     renders, shuffled within the group (training-time feature shuffle). ``model`` is a
     ``RelightDiffusion``, possibly wrapped for distributed training (called, never unwrapped).
@@ -32,15 +32,15 @@ def diffusion_loss(
     extra, so the random stream of a run without it is unchanged. With a share, every
     target at the last timestep starts from pure noise (``pure_noise_velocity``).
     """
-    images, light, camera = batch["images"], batch["light"], batch["camera"]
+    images, light_pos, camera_pos = batch["images"], batch["light_pos"], batch["camera_pos"]
     b, v = images.shape[:2]
     targets = images.flatten(0, 1)
     photo = images[:, :1].expand(-1, v, -1, -1, -1).flatten(0, 1)
     perm = shuffle_within_groups(b * v, v, generator).to(images.device)
     unwrapped = getattr(model, "module", model)  # DistributedDataParallel keeps the model in .module
-    light, camera = light.flatten(0, 1), camera.flatten(0, 1)
+    light_pos, camera_pos = light_pos.flatten(0, 1), camera_pos.flatten(0, 1)
     # One base for the target x0 and the UNet's extra channels (the condition).
-    base_x = unwrapped.residual_base(photo, light, camera)
+    base_x = unwrapped.residual_base(photo, light_pos, camera_pos)
     x0 = unwrapped.to_model_space(targets, base_x)
     noise = torch.randn(x0.shape, generator=generator).to(x0.device)
     last = scheduler.config.num_train_timesteps - 1
@@ -58,7 +58,7 @@ def diffusion_loss(
         alpha_bar = scheduler.alphas_cumprod[last].to(x0)
         x_t = torch.where(pure, noise, x_t)
         target = torch.where(pure, pure_noise_velocity(x0, noise, alpha_bar), target)
-    pred = model(x_t, t, photo, targets, light, camera, perm, base_x)
+    pred = model(x_t, t, photo, targets, light_pos, camera_pos, perm, base_x)
     return F.mse_loss(pred, target)
 
 

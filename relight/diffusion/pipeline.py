@@ -9,6 +9,7 @@ import torch
 from diffusers import DDIMScheduler
 from tqdm.auto import tqdm
 
+from kernels.checks import FLOATING_DTYPES, ShapeDims, check_above_plane, check_finite, check_shape
 from relight.diffusion.model import RelightDiffusion
 
 __all__ = ["RelightPipeline", "DEFAULT_STEPS", "make_sample_scheduler"]
@@ -42,8 +43,8 @@ class RelightPipeline:
     def __call__(
         self,
         photo: torch.Tensor,
-        lights: torch.Tensor,
-        camera: torch.Tensor,
+        light_pos: torch.Tensor,
+        camera_pos: torch.Tensor,
         *,
         num_inference_steps: int = DEFAULT_STEPS,
         num_samples: int = 1,
@@ -54,8 +55,8 @@ class RelightPipeline:
         Args:
             photo: ``[3, H, W]`` linear radiance, lit by a flash at the camera; H = W =
                 the model's resolution.
-            lights: ``[K, 3]`` target light positions (z > 0), scene units.
-            camera: ``[3]`` camera position.
+            light_pos: ``[K, 3]`` target light positions (z > 0), scene units.
+            camera_pos: ``[3]`` camera (and flash) position (z > 0).
             num_samples: samples per target; the result is their mean (averaging
                 reduces the sampler's variance).
         Returns:
@@ -64,30 +65,27 @@ class RelightPipeline:
         """
         model = self.model
         res = model.config.resolution
-        # 1. Check the inputs.
-        if photo.dim() != 3 or photo.shape[0] != 3:
-            raise ValueError(f"photo must have shape [3, H, W], got {tuple(photo.shape)}")
-        if tuple(photo.shape[1:]) != (res, res):
-            raise ValueError(f"photo must be {res}x{res} for this model, got {tuple(photo.shape[1:])}")
-        if lights.dim() != 2 or lights.shape[1] != 3 or lights.shape[0] == 0:
-            raise ValueError(f"lights must have shape [K, 3], got {tuple(lights.shape)}")
-        if camera.shape != (3,):
-            raise ValueError(f"camera must have shape [3], got {tuple(camera.shape)}")
-        if (lights[:, 2] <= 0).any() or camera[2] <= 0:
-            raise ValueError("lights and camera must lie above the material plane (z > 0)")
-        if not torch.isfinite(photo).all():
-            raise ValueError("photo holds NaN or inf values")
+        # 1. Check the inputs (any floating dtype: they are cast to the model's).
+        size = ShapeDims(H=res, W=res)
+        size.sources.update(H="the model's config (resolution)", W="the model's config (resolution)")
+        check_shape(photo, "3 H W", name="photo", dims=size, dtypes=FLOATING_DTYPES)
+        k = check_shape(light_pos, "K 3", name="light_pos", dtypes=FLOATING_DTYPES)["K"]
+        if k == 0:
+            raise ValueError("light_pos must hold at least one target light (K >= 1)")
+        check_shape(camera_pos, "3", name="camera_pos", dtypes=FLOATING_DTYPES)
+        check_above_plane("light_pos", light_pos)
+        check_above_plane("camera_pos", camera_pos)
+        check_finite(photo=photo)
         if num_samples < 1 or num_inference_steps < 1:
             raise ValueError("num_samples and num_inference_steps must be at least 1")
         model.eval()
         device = next(model.parameters()).device
-        k = lights.shape[0]
         n = k * num_samples
         # 2. Encode the condition once per target (the background is the photo itself).
         photos = photo.to(device)[None].expand(n, -1, -1, -1)
-        target_lights = lights.to(device).repeat(num_samples, 1)
-        cameras = camera.to(device)[None].expand(n, 3)
-        cond = model.encode_condition(photos, photos, target_lights, cameras)
+        target_pos = light_pos.to(device).repeat(num_samples, 1)
+        cameras = camera_pos.to(device)[None].expand(n, 3)
+        cond = model.encode_condition(photos, photos, target_pos, cameras)
         # 3. Start from noise.
         x = torch.randn((n, *model.sample_shape), generator=generator, device="cpu").to(device)
         # 4. Denoise.

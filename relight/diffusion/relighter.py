@@ -26,12 +26,12 @@ class DiffusionRelighter(Relighter):
         self.steps = steps
         self.num_samples = num_samples
 
-    def _relight(self, photo, camera, lights, *, generator=None):
+    def _relight(self, photo, light_pos, camera_pos, *, generator=None):
         outs = [
             self.pipeline(
                 photo[b].float(),
-                lights[b].float(),
-                camera[b].float(),
+                light_pos[b].float(),
+                camera_pos[b].float(),
                 num_inference_steps=self.steps,
                 num_samples=self.num_samples,
                 generator=generator,

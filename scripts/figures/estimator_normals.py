@@ -2,7 +2,7 @@
 
     .venv/bin/python scripts/figures/estimator_normals.py [--out PNG] [--model DIR] [--num-threads N]
 
-Rows: the three Table-2 materials (the crops ``relight eval estimator --num 16 --size 64``
+Rows: the three Table-2 materials (the crops ``relight eval estimation --num 16 --size 64``
 scores) with the most relief, i.e. the largest ground-truth normal MSE to a flat map.
 Columns: flash photo (tone-mapped), ground-truth normals, normals from the flash photo
 alone, from flash + 7 renders; no refinement. Normals are shown as 0.5 + 2.5 (x, y, z - 1)
@@ -34,7 +34,7 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_OUT = REPO_ROOT / "results" / "estimator_figures" / "normals_1_vs_8.png"
 #: Exaggeration of the normal display (module docstring).
 GAIN = 2.5
-#: Table-2 materials and their size (``relight eval estimator --num 16 --size 64``).
+#: Table-2 materials and their size (``relight eval estimation --num 16 --size 64``).
 NUM_MATERIALS = 16
 SIZE = 64
 #: Rows of the picture: the materials with the most relief.

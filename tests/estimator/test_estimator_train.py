@@ -54,7 +54,7 @@ def test_overfits_a_fixed_batch():
     opt = torch.optim.Adam(model.parameters(), lr=3e-3)
     losses = []
     for _ in range(OVERFIT_STEPS):
-        pred = model(batch["images"], batch["light"], batch["camera"])
+        pred = model(batch["images"], batch["light_pos"], batch["camera_pos"])
         loss = estimator_loss(pred, target, generator=torch.Generator().manual_seed(0))["loss"]
         opt.zero_grad()
         loss.backward()

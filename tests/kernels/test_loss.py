@@ -192,7 +192,7 @@ def test_sample_loss_lights_geometry(plane_size):
     assert light.shape == camera.shape == (64, 9, 3) and light.dtype == torch.float64
     assert bool((light[..., 2] > 0).all()) and bool((camera[..., 2] > 0).all())
     # Specular configurations: the mirror point of light and camera lies on the plane.
-    m = kernels.mirror_point(camera[:, 3:], light[:, 3:])
+    m = kernels.mirror_point(light[:, 3:], camera[:, 3:])
     assert float(m.abs().max()) <= 0.75 * plane_size / 2 + 1e-9  # centres drawn in 75% of the plane
     again = kernels.sample_loss_lights(
         64, plane_size=plane_size, generator=torch.Generator().manual_seed(0), dtype=torch.float64

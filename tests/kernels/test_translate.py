@@ -110,7 +110,7 @@ def test_mirror_point_equal_heights_is_midpoint():
     cam = torch.tensor([1.0, 1.0, 5.0], dtype=torch.float64)
     light = torch.tensor([3.0, -1.0, 5.0], dtype=torch.float64)
     torch.testing.assert_close(
-        kernels.mirror_point(cam, light), torch.tensor([2.0, 0.0], dtype=torch.float64), rtol=0, atol=GEOM_ATOL
+        kernels.mirror_point(light, cam), torch.tensor([2.0, 0.0], dtype=torch.float64), rtol=0, atol=GEOM_ATOL
     )
 
 
@@ -118,7 +118,7 @@ def test_mirror_point_is_where_reflection_angles_match():
     """At m the angles of incidence and reflection are equal: c_z / |c_xy - m| = p_z / |p_xy - m|."""
     cam = torch.tensor([0.5, -0.3, 4.0], dtype=torch.float64)
     light = torch.tensor([-2.0, 1.5, 7.0], dtype=torch.float64)
-    m = kernels.mirror_point(cam, light)
+    m = kernels.mirror_point(light, cam)
     tan_c = cam[2] / (cam[:2] - m).norm()
     tan_p = light[2] / (light[:2] - m).norm()
     torch.testing.assert_close(tan_c, tan_p, rtol=0, atol=GEOM_ATOL)
@@ -129,7 +129,7 @@ def test_highlight_offsets_x_right_and_y_up(plane_size, size):
     h, w = size
     cam = torch.tensor([0.0, 0.0, 4.0], dtype=torch.float64)
     lights = torch.tensor([[2.0, 0.0, 4.0], [0.0, 2.0, 4.0]], dtype=torch.float64)
-    offs = kernels.highlight_offsets(cam, lights, plane_size, size)
+    offs = kernels.highlight_offsets(lights, cam, plane_size, size)
     # Mirror point x = 1 plane unit -> dx = w / plane_size pixels; +y (up) -> negative rows.
     expected = torch.tensor([[w / plane_size, 0.0], [0.0, -h / plane_size]], dtype=torch.float64)
     torch.testing.assert_close(offs, expected, rtol=0, atol=GEOM_ATOL)
@@ -139,7 +139,7 @@ def test_highlight_offsets_are_relative_to_the_camera():
     cam = torch.tensor([1.0, -1.0, 4.0], dtype=torch.float64)
     light = torch.tensor([1.0, -1.0, 6.0], dtype=torch.float64)  # straight above the camera
     torch.testing.assert_close(
-        kernels.highlight_offsets(cam, light, 4.0, (16, 16)),
+        kernels.highlight_offsets(light, cam, 4.0, (16, 16)),
         torch.zeros(2, dtype=torch.float64),
         rtol=0,
         atol=GEOM_ATOL,
@@ -159,7 +159,7 @@ def test_translated_highlight_lands_where_the_renderer_puts_it():
     target_light = torch.tensor([1.0625, -1.0625, 4.0])
     lights = torch.stack([cam, target_light])
     img = kernels.render(d, n, r, s, lights, cam)[0, :, 0]  # [2, H, W]; red channel
-    offs = kernels.highlight_offsets(cam, target_light, plane, (size, size))
+    offs = kernels.highlight_offsets(target_light, cam, plane, (size, size))
     torch.testing.assert_close(offs, torch.tensor([8.5, 8.5]), rtol=0, atol=1e-5)
     moved = kernels.translate(img[:1, None], offs[None])[0, 0]
 

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 import kernels
-from kernels._checks import check_finite
+from kernels.checks import check_finite
 
 
 @pytest.fixture
@@ -17,8 +17,8 @@ def good(make_maps, make_positions):
     """Valid render arguments: B=2, 4x5 maps, K=3 lights, one camera."""
     return {
         "maps": make_maps(2, 4, 5),
-        "light": make_positions((2, 3), seed=2),
-        "camera": torch.tensor([0.0, 0.0, 4.0]),
+        "light_pos": make_positions((2, 3), seed=2),
+        "camera_pos": torch.tensor([0.0, 0.0, 4.0]),
     }
 
 
@@ -27,8 +27,8 @@ def _render(good, index=None, value=None, *, light_pos=None, camera_pos=None, **
     maps = list(good["maps"])
     if index is not None:
         maps[index] = value
-    light = good["light"] if light_pos is None else light_pos
-    camera = good["camera"] if camera_pos is None else camera_pos
+    light = good["light_pos"] if light_pos is None else light_pos
+    camera = good["camera_pos"] if camera_pos is None else camera_pos
     return kernels.render(*maps, light, camera, **kw)
 
 
@@ -36,11 +36,11 @@ def _render(good, index=None, value=None, *, light_pos=None, camera_pos=None, **
 @pytest.mark.parametrize(
     "index,shape,match",
     [
-        (0, (2, 2, 4, 5), r"diffuse must have 3 channel"),
-        (2, (2, 3, 4, 5), r"roughness must have 1 channel"),
-        (3, (2, 3, 4, 5, 1), r"specular must have 4 dims"),
-        (1, (2, 3, 4, 6), r"normal has shape \(2, 3, 4, 6\).*4x5"),
-        (2, (1, 1, 4, 5), r"roughness has shape .*batch 2"),
+        (0, (2, 2, 4, 5), r"diffuse must have shape \[B, 3, H, W\], got \(2, 2, 4, 5\): dim 1 is 2, expected 3"),
+        (2, (2, 3, 4, 5), r"roughness must have shape \[B, 1, H, W\], got \(2, 3, 4, 5\): dim 1 is 3"),
+        (3, (2, 3, 4, 5, 1), r"specular must have shape \[B, 3, H, W\], got .*: 5 dims, expected 4"),
+        (1, (2, 3, 4, 6), r"normal must have shape \[B, 3, H, W\], got \(2, 3, 4, 6\): W is 6, but 5 in diffuse"),
+        (2, (1, 1, 4, 5), r"roughness must have shape .*: B is 1, but 2 in diffuse"),
     ],
 )
 def test_map_shapes(good, index, shape, match):
@@ -95,7 +95,7 @@ def test_finite_values_whose_sum_overflows_are_accepted(good):
 @pytest.mark.parametrize(
     "shape,match",
     [
-        ((3, 4), r"light_pos must have shape \[3\], \[K, 3\] or \[B, K, 3\], got \(3, 4\)"),
+        ((3, 4), r"light_pos must have shape \[3\], \[K, 3\] or \[B, K, 3\], got \(3, 4\): dim 1 is 4"),
         ((2, 3, 3, 3), r"light_pos must have shape"),
         ((5, 3, 3), r"light_pos has batch size 5, the maps have 2"),
     ],
@@ -111,7 +111,7 @@ def test_camera_count_must_match_lights(good):
 
 
 def test_nan_light_and_camera_are_named(good):
-    light = good["light"].clone()
+    light = good["light_pos"].clone()
     light[0, 1, 2] = float("nan")
     with pytest.raises(ValueError, match=r"light_pos holds 1 NaN"):
         _render(good, light_pos=light)
@@ -121,7 +121,7 @@ def test_nan_light_and_camera_are_named(good):
 
 def test_position_dtype_must_match_maps(good):
     with pytest.raises(TypeError, match=r"light_pos is torch.float64"):
-        _render(good, light_pos=good["light"].double())
+        _render(good, light_pos=good["light_pos"].double())
 
 
 # --------------------------------------------------------------------------- presets, overrides
@@ -176,9 +176,9 @@ def test_lvh_maps_validation():
 @pytest.mark.parametrize(
     "offsets,match",
     [
-        (torch.zeros(3, 2), r"offsets must have shape \[2, 2\], got \(3, 2\)"),
-        (torch.zeros(2, 3), r"offsets must have shape \[2, 2\], got \(2, 3\)"),
-        (torch.zeros(2), r"offsets must have 2 dims"),
+        (torch.zeros(3, 2), r"offsets must have shape \[B, 2\], got \(3, 2\): B is 3, but 2 in features"),
+        (torch.zeros(2, 3), r"offsets must have shape \[B, 2\], got \(2, 3\): dim 1 is 3, expected 2"),
+        (torch.zeros(2), r"offsets must have shape \[B, 2\], got \(2,\): 1 dims, expected 2"),
     ],
 )
 def test_translate_offsets_shape(offsets, match):
@@ -187,7 +187,7 @@ def test_translate_offsets_shape(offsets, match):
 
 
 def test_translate_features_and_dtypes():
-    with pytest.raises(ValueError, match=r"features must have 4 dims"):
+    with pytest.raises(ValueError, match=r"features must have shape \[B, C, h, w\], got \(4, 5, 5\): 3 dims"):
         kernels.translate(torch.rand(4, 5, 5), torch.zeros(4, 2))
     with pytest.raises(TypeError, match=r"offsets is torch.float64 but features is torch.float32"):
         kernels.translate(torch.rand(2, 4, 5, 5), torch.zeros(2, 2, dtype=torch.float64))
@@ -202,18 +202,20 @@ def test_translate_features_and_dtypes():
 def test_highlight_offsets_validation():
     cam = torch.tensor([0.0, 0.0, 4.0])
     with pytest.raises(ValueError, match=r"above the plane"):
-        kernels.highlight_offsets(cam, torch.tensor([1.0, 0.0, -1.0]), 4.0, (8, 8))
+        kernels.highlight_offsets(torch.tensor([1.0, 0.0, -1.0]), cam, 4.0, (8, 8))
     with pytest.raises(ValueError, match=r"plane_size must be positive"):
-        kernels.highlight_offsets(cam, torch.tensor([1.0, 0.0, 4.0]), 0.0, (8, 8))
+        kernels.highlight_offsets(torch.tensor([1.0, 0.0, 4.0]), cam, 0.0, (8, 8))
 
 
 # --------------------------------------------------------------------------- losses
 def test_rendering_loss_target_shape(good):
     target = torch.rand(2, 3, 3, 4, 6)
-    with pytest.raises(ValueError, match=r"target must have shape \(2, 3, 3, 4, 5\) \(B, K, 3, H, W\)"):
-        kernels.rendering_loss(*good["maps"], target, good["light"], good["camera"])
-    with pytest.raises(ValueError, match=r"target must have 5 dims"):
-        kernels.rendering_loss(*good["maps"], torch.rand(2, 9, 4, 5), good["light"], good["camera"])
+    with pytest.raises(
+        ValueError, match=r"target must have shape \[B, K, 3, H, W\], got \(2, 3, 3, 4, 6\): W is 6, but 5"
+    ):
+        kernels.rendering_loss(*good["maps"], target, good["light_pos"], good["camera_pos"])
+    with pytest.raises(ValueError, match=r"target must have shape \[B, K, 3, H, W\], got \(2, 9, 4, 5\): 4 dims"):
+        kernels.rendering_loss(*good["maps"], torch.rand(2, 9, 4, 5), good["light_pos"], good["camera_pos"])
 
 
 def test_rendering_loss_target_values(good):
@@ -221,11 +223,11 @@ def test_rendering_loss_target_values(good):
     bad = target.clone()
     bad[0, 0, 0, 0, 0] = float("nan")
     with pytest.raises(ValueError, match=r"target holds 1 NaN"):
-        kernels.rendering_loss(*good["maps"], bad, good["light"], good["camera"])
+        kernels.rendering_loss(*good["maps"], bad, good["light_pos"], good["camera_pos"])
     with pytest.raises(ValueError, match=r"target must be > -eps"):
-        kernels.rendering_loss(*good["maps"], target - 1, good["light"], good["camera"])
+        kernels.rendering_loss(*good["maps"], target - 1, good["light_pos"], good["camera_pos"])
     with pytest.raises(TypeError, match=r"target is torch.float64"):
-        kernels.rendering_loss(*good["maps"], target.double(), good["light"], good["camera"])
+        kernels.rendering_loss(*good["maps"], target.double(), good["light_pos"], good["camera_pos"])
 
 
 @pytest.mark.parametrize("name", ["log_l1_loss", "mse_loss"])

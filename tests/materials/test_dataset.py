@@ -27,7 +27,7 @@ CFG = GroupConfig(size=32, views=8, source_size=64)
 def test_item_shapes_and_ranges():
     item = RenderedGroups(TRAIN_SEEDS, CFG)[5]
     assert item["images"].shape == (8, 3, 32, 32)
-    assert item["light"].shape == (8, 3) and item["camera"].shape == (8, 3)
+    assert item["light_pos"].shape == (8, 3) and item["camera_pos"].shape == (8, 3)
     assert item["maps"].shape == (10, 32, 32)
     assert torch.isfinite(item["images"]).all() and (item["images"] >= 0).all()
     Material.from_stacked(item["maps"]).validate()
@@ -55,8 +55,8 @@ def test_deterministic_items():
     a = RenderedGroups(TRAIN_SEEDS, CFG)[3]
     b = RenderedGroups(TRAIN_SEEDS, CFG)[3]
     c = RenderedGroups(TRAIN_SEEDS, GroupConfig(size=32, views=8, source_size=64, seed=1))[3]
-    assert torch.equal(a["images"], b["images"]) and torch.equal(a["light"], b["light"])
-    assert not torch.equal(a["light"], c["light"])
+    assert torch.equal(a["images"], b["images"]) and torch.equal(a["light_pos"], b["light_pos"])
+    assert not torch.equal(a["light_pos"], c["light_pos"])
 
 
 def test_batch_matches_reference_renderer():
@@ -64,7 +64,7 @@ def test_batch_matches_reference_renderer():
     batch = next(iter(loader))
     assert batch["images"].shape == (2, 8, 3, 32, 32)
     maps = Material.from_stacked(batch["maps"])
-    expected = ref.render(*maps.map_tensors(), batch["light"], batch["camera"])
+    expected = ref.render(*maps.map_tensors(), batch["light_pos"], batch["camera_pos"])
     scale = expected.abs().max()
     assert (batch["images"] - expected).abs().max() <= RENDER_RTOL * scale
 

@@ -22,13 +22,13 @@ def one_thread():
 
 @pytest.fixture(scope="session")
 def group_batch():
-    """Two materials at 16x16: photo [2, 3, H, W], camera [2, 3], lights [2, 3, 3], target [2, 3, 3, H, W]."""
+    """Two materials at 16x16: photo [2, 3, H, W], light_pos [2, 3, 3], camera_pos [2, 3], target [2, 3, 3, H, W]."""
     data = RenderedGroups(range(2), GroupConfig(size=16, source_size=32, views=4))
     items = [data[i] for i in range(2)]
     return {
         "photo": torch.stack([it["images"][0] for it in items]),
-        "camera": torch.stack([it["camera"][0] for it in items]),
-        "lights": torch.stack([it["light"][1:] for it in items]),
+        "light_pos": torch.stack([it["light_pos"][1:] for it in items]),
+        "camera_pos": torch.stack([it["camera_pos"][0] for it in items]),
         "target": torch.stack([it["images"][1:] for it in items]),
     }
 

@@ -1,4 +1,4 @@
-"""``relight generate`` and ``relight eval relight`` on tiny inputs; bad input gives one
+"""``relight generate`` and ``relight eval relighting`` on tiny inputs; bad input gives one
 clear line, exit code 2, nothing written."""
 
 import json
@@ -76,11 +76,11 @@ def test_generate_rejects_grey_and_unknown_files(tmp_path, capsys):
     assert ".png (tone-mapped) or .exr" in capsys.readouterr().err
 
 
-def test_eval_relight_cli(tmp_path, tiny_checkpoint, capsys):
+def test_eval_relighting_cli(tmp_path, tiny_checkpoint, capsys):
     out = tmp_path / "e"
     argv = [
         "eval",
-        "relight",
+        "relighting",
         "--count",
         "1",
         "--size",
@@ -96,11 +96,31 @@ def test_eval_relight_cli(tmp_path, tiny_checkpoint, capsys):
     rows = json.loads((out / "relight_eval.json").read_text())["rows"]
     assert [r["method"] for r in rows] == ["input", "lambertian", "bieron"]
     assert (out / "relight_eval.md").is_file() and (out / "relight_eval.png").is_file()
-    assert main(["eval", "relight", "--count", "0", "--out", str(tmp_path / "e2")]) == 2
+    assert "deprecated" not in capsys.readouterr().err
+    assert main(["eval", "relighting", "--count", "0", "--out", str(tmp_path / "e2")]) == 2
     assert "count must be in 1..64" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("command, text", [(["generate"], "(default {})"), (["eval", "relight"], "{} for diffusion")])
+def test_old_eval_targets_still_work_with_a_deprecation_note(tmp_path, capsys):
+    # ``relight`` -> ``relighting`` and ``estimator`` -> ``estimation`` (issue 17): the
+    # old spellings run the same command for one release and say so on stderr.
+    argv = ["--count", "1", "--size", "16", "--methods", "input", "--out"]
+    assert main(["eval", "relight", *argv, str(tmp_path / "old")]) == 0
+    assert "relight eval relight: deprecated name, use 'relight eval relighting'" in capsys.readouterr().err
+    assert main(["eval", "relighting", *argv, str(tmp_path / "new")]) == 0
+    assert "deprecated" not in capsys.readouterr().err
+    old, new = (json.loads((tmp_path / d / "relight_eval.json").read_text())["rows"] for d in ("old", "new"))
+    assert [r["PSNR"] for r in old] == [r["PSNR"] for r in new]
+    from matcap.cli import build_parser
+    from matcap.cmd_eval import run_estimator
+
+    for target in ("estimator", "estimation"):
+        assert build_parser().parse_args(["eval", target, "--out", str(tmp_path / "x")]).run is run_estimator
+
+
+@pytest.mark.parametrize(
+    "command, text", [(["generate"], "(default {})"), (["eval", "relighting"], "{} for diffusion")]
+)
 def test_steps_help_names_the_pipeline_default(capsys, command, text):
     # The help texts are written without importing the diffusion package (it would slow
     # every command); this keeps the number in them from drifting from the pipeline's.

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from relight import metrics
+from materials import metrics
 from relight.evaluate import EvalConfig, evaluate, format_per_material, format_table, load_eval_data, write_report
 from relight.interface import get_relighter
 
@@ -74,8 +74,8 @@ def test_stochastic_methods_get_a_mean_row():
     class Noisy(get_relighter("input").__class__):
         stochastic = True
 
-        def _relight(self, photo, camera, lights, *, generator=None):
-            out = super()._relight(photo, camera, lights)
+        def _relight(self, photo, light_pos, camera_pos, *, generator=None):
+            out = super()._relight(photo, light_pos, camera_pos)
             return (out + 0.01 * torch.rand(out.shape, generator=generator)).clamp_min(0)
 
     result = evaluate({"noisy": Noisy()}, EvalConfig(count=1, size=16, samples=3))
@@ -101,8 +101,8 @@ def test_confidence_picture_and_correlation(tmp_path):
     class Noisy(get_relighter("input").__class__):
         stochastic = True
 
-        def _relight(self, photo, camera, lights, *, generator=None):
-            out = super()._relight(photo, camera, lights)
+        def _relight(self, photo, light_pos, camera_pos, *, generator=None):
+            out = super()._relight(photo, light_pos, camera_pos)
             return (out * (1 + 0.2 * torch.rand(out.shape, generator=generator))).clamp_min(0)
 
     result = evaluate({"noisy": Noisy()}, EvalConfig(count=1, size=16, samples=2))

@@ -18,7 +18,7 @@ OVERFIT_RATIO = {"none": 0.25, "lambertian": 0.7}
 
 def test_shapes(group_batch):
     net = BieronRelighter(**TINY)
-    out = net(group_batch["photo"], group_batch["camera"], group_batch["lights"])
+    out = net(group_batch["photo"], group_batch["light_pos"], group_batch["camera_pos"])
     assert out.shape == (2, 3, 3, 16, 16)
     assert torch.isfinite(out).all()
 
@@ -28,14 +28,14 @@ def test_untrained_residual_network_is_the_lambertian_baseline(group_batch):
 
     b = group_batch
     net = NetworkRelighter(BieronRelighter(**TINY, residual="lambertian"))
-    expected = LambertianRelighter().relight(b["photo"], b["camera"], b["lights"]).clamp(0, 1)
-    torch.testing.assert_close(net.relight(b["photo"], b["camera"], b["lights"]), expected, rtol=1e-4, atol=1e-5)
+    expected = LambertianRelighter().relight(b["photo"], b["light_pos"], b["camera_pos"]).clamp(0, 1)
+    torch.testing.assert_close(net.relight(b["photo"], b["light_pos"], b["camera_pos"]), expected, rtol=1e-4, atol=1e-5)
 
 
 def test_plain_and_residual_variants_have_the_same_shapes(group_batch):
     b = group_batch
     for residual in ("none", "lambertian"):
-        out = BieronRelighter(**TINY, residual=residual)(b["photo"], b["camera"], b["lights"])
+        out = BieronRelighter(**TINY, residual=residual)(b["photo"], b["light_pos"], b["camera_pos"])
         assert out.shape == (2, 3, 3, 16, 16)
     try:
         BieronRelighter(residual="other")
@@ -55,8 +55,8 @@ def test_encode_once_decode_per_target_matches_one_at_a_time(group_batch):
     net = BieronRelighter(**TINY).eval()
     b = group_batch
     with torch.no_grad():
-        together = net(b["photo"], b["camera"], b["lights"])
-        single = torch.cat([net(b["photo"], b["camera"], b["lights"][:, k : k + 1]) for k in range(3)], 1)
+        together = net(b["photo"], b["light_pos"], b["camera_pos"])
+        single = torch.cat([net(b["photo"], b["light_pos"][:, k : k + 1], b["camera_pos"]) for k in range(3)], 1)
     torch.testing.assert_close(together, single, rtol=1e-5, atol=1e-5)
 
 
@@ -64,7 +64,7 @@ def test_rejects_sizes_that_are_not_multiples():
     net = BieronRelighter(**TINY)
     cam = torch.tensor([[0.0, 0.0, 4.0]])
     try:
-        net(torch.rand(1, 3, 15, 16), cam, torch.tensor([[[1.0, 1.0, 4.0]]]))
+        net(torch.rand(1, 3, 15, 16), torch.tensor([[[1.0, 1.0, 4.0]]]), cam)
     except ValueError as exc:
         assert "multiples of 2" in str(exc)
     else:
@@ -82,7 +82,7 @@ def test_save_load_round_trip(tmp_path, group_batch):
     b = group_batch
     with torch.no_grad():
         torch.testing.assert_close(
-            back(b["photo"], b["camera"], b["lights"]), net(b["photo"], b["camera"], b["lights"])
+            back(b["photo"], b["light_pos"], b["camera_pos"]), net(b["photo"], b["light_pos"], b["camera_pos"])
         )
 
 
@@ -100,3 +100,26 @@ def test_overfits_a_fixed_batch(group_batch, residual):
         opt.step()
         losses.append(float(loss.detach()))
     assert losses[-1] < OVERFIT_RATIO[residual] * losses[0], losses[::10]
+
+
+#: The Lambertian base through ``relight.shading`` (plane points in torch) against the
+#: cosine ratio read from the Warp l/v/h maps, as the network computed it before it
+#: shared the re-shading: the same formula in float32 along two paths. Each cosine is
+#: a subtraction, a sum of squares, a square root and a division (~4 roundings of 6e-8),
+#: the ratio and the product add two more: ~6e-7 relative; 2e-6 leaves a 3x margin.
+BASE_RTOL = 2e-6
+
+
+def test_lambertian_base_is_the_cosine_ratio_without_falloff(group_batch):
+    import kernels
+    from kernels.presets import get_preset
+    from relight.shading import lambertian_relight
+
+    b = group_batch
+    photo, light_pos, camera_pos = b["photo"], b["light_pos"], b["camera_pos"]
+    k, size = light_pos.shape[1], photo.shape[-2:]
+    lvh = kernels.lvh_maps(light_pos, camera_pos[:, None].expand(-1, k, 3), size)
+    view_z = kernels.lvh_maps(camera_pos[:, None], camera_pos[:, None], size)[:, :, 5:6]
+    cosine_ratio = photo[:, None] * lvh[:, :, 2:3] / view_z
+    shared = lambertian_relight(photo, light_pos, camera_pos, get_preset("dgrsise"))
+    torch.testing.assert_close(shared, cosine_ratio, rtol=BASE_RTOL, atol=0)

@@ -25,9 +25,9 @@ def test_shipped_weights_are_small_and_documented():
 def test_default_bieron_loads_the_shipped_weights():
     relighter = get_relighter("bieron")
     photo = torch.rand(1, 3, 32, 32) * 0.3
-    camera = torch.tensor([[0.0, 0.0, 4.0]])
-    lights = torch.tensor([[[2.0, 2.0, 4.0], [-1.0, 0.5, 7.0]]])
-    out = relighter.relight(photo, camera, lights)
+    light_pos = torch.tensor([[[2.0, 2.0, 4.0], [-1.0, 0.5, 7.0]]])
+    camera_pos = torch.tensor([[0.0, 0.0, 4.0]])
+    out = relighter.relight(photo, light_pos, camera_pos)
     assert out.shape == (1, 2, 3, 32, 32) and torch.isfinite(out).all() and (out >= 0).all() and (out <= 1).all()
 
 

@@ -28,8 +28,8 @@ def group_batch():
 def make_group_batch(b=1, v=4, size=16, seed=0):
     gen = torch.Generator().manual_seed(seed)
     images = torch.rand(b, v, 3, size, size, generator=gen)
-    light = torch.rand(b, v, 3, generator=gen) * 4 - 2
-    light[..., 2] = 4 + torch.rand(b, v, generator=gen)
-    camera = torch.tensor([0.0, 0.0, 4.0]).expand(b, v, 3).clone()
-    light[:, 0] = camera[:, 0]
-    return {"images": images, "light": light, "camera": camera}
+    light_pos = torch.rand(b, v, 3, generator=gen) * 4 - 2
+    light_pos[..., 2] = 4 + torch.rand(b, v, generator=gen)
+    camera_pos = torch.tensor([0.0, 0.0, 4.0]).expand(b, v, 3).clone()
+    light_pos[:, 0] = camera_pos[:, 0]
+    return {"images": images, "light_pos": light_pos, "camera_pos": camera_pos}

@@ -86,14 +86,14 @@ def test_few_steps_overfit_a_fixed_batch(tiny_model, group_batch):
 def test_pipeline_deterministic_and_checked(tiny_model):
     pipe = RelightPipeline(tiny_model)
     photo = torch.rand(3, 16, 16)
-    lights = torch.tensor([[1.0, 1.0, 4.0], [-2.0, 0.5, 6.0]])
-    camera = torch.tensor([0.0, 0.0, 4.0])
+    light_pos = torch.tensor([[1.0, 1.0, 4.0], [-2.0, 0.5, 6.0]])
+    camera_pos = torch.tensor([0.0, 0.0, 4.0])
 
     def run():
         return pipe(
             photo,
-            lights,
-            camera,
+            light_pos,
+            camera_pos,
             num_inference_steps=3,
             generator=torch.Generator().manual_seed(3),
             progress=False,
@@ -102,12 +102,12 @@ def test_pipeline_deterministic_and_checked(tiny_model):
 
     a, b = run(), run()
     assert a.shape == (2, 3, 16, 16) and torch.equal(a, b) and (a >= 0).all()
-    with pytest.raises(ValueError, match="16x16"):
-        pipe(torch.rand(3, 8, 8), lights, camera, progress=False)
-    with pytest.raises(ValueError, match=r"\[3, H, W\]"):
-        pipe(torch.rand(4, 16, 16), lights, camera, progress=False)
-    with pytest.raises(ValueError, match="above the material plane"):
-        pipe(photo, torch.tensor([[0.0, 0.0, -1.0]]), camera, progress=False)
+    with pytest.raises(ValueError, match=r"H is 8, but 16 in the model's config"):
+        pipe(torch.rand(3, 8, 8), light_pos, camera_pos, progress=False)
+    with pytest.raises(ValueError, match=r"photo must have shape \[3, H, W\], got \(4, 16, 16\)"):
+        pipe(torch.rand(4, 16, 16), light_pos, camera_pos, progress=False)
+    with pytest.raises(ValueError, match="light_pos has a position on or below the material plane"):
+        pipe(photo, torch.tensor([[0.0, 0.0, -1.0]]), camera_pos, progress=False)
 
 
 def test_registered_behind_the_common_interface(tiny_model, tmp_path):
@@ -117,9 +117,9 @@ def test_registered_behind_the_common_interface(tiny_model, tmp_path):
     relighter = get_relighter("diffusion", tmp_path / "m")
     relighter.steps = 2
     photo = torch.rand(2, 3, 16, 16)
-    camera = torch.tensor([[0.0, 0.0, 4.0]]).repeat(2, 1)
-    lights = torch.tensor([[[1.0, 1.0, 4.0], [-1.0, 2.0, 5.0], [0.0, -2.0, 6.0]]]).repeat(2, 1, 1)
-    out = relighter.relight(photo, camera, lights, generator=torch.Generator().manual_seed(0))
+    light_pos = torch.tensor([[[1.0, 1.0, 4.0], [-1.0, 2.0, 5.0], [0.0, -2.0, 6.0]]]).repeat(2, 1, 1)
+    camera_pos = torch.tensor([[0.0, 0.0, 4.0]]).repeat(2, 1)
+    out = relighter.relight(photo, light_pos, camera_pos, generator=torch.Generator().manual_seed(0))
     assert out.shape == (2, 3, 3, 16, 16) and getattr(relighter, "stochastic", False)
     # float16 storage: loaded weights equal the originals rounded to half precision
     loaded = relighter.pipeline.model
@@ -161,7 +161,7 @@ def test_lambertian_base_is_the_lambertian_baseline_and_round_trips(tiny_model):
 
     model = RelightDiffusion(dataclasses.replace(tiny_model.config, base="lambertian"))
     photo, light, camera, x, t = _inputs(model)
-    expected = get_relighter("lambertian").relight(photo, camera, light[:, None])[:, 0]
+    expected = get_relighter("lambertian").relight(photo, light[:, None], camera)[:, 0]
     base_x = model.residual_base(photo, light, camera)
     torch.testing.assert_close(base_x, RelightDiffusion.tonemapped(expected))
     with torch.no_grad():
@@ -209,7 +209,8 @@ def test_objective_and_condition_use_the_same_residual_base(tiny_model, group_ba
     assert seen[0] is bases[0]
     photo, light, camera = calls[0]
     assert torch.equal(photo, batch["images"][:, :1].expand(-1, 4, -1, -1, -1).flatten(0, 1))
-    assert torch.equal(light, batch["light"].flatten(0, 1)) and torch.equal(camera, batch["camera"].flatten(0, 1))
+    assert torch.equal(light, batch["light_pos"].flatten(0, 1))
+    assert torch.equal(camera, batch["camera_pos"].flatten(0, 1))
     # the condition computes the same base itself when none is given (inference)
     assert torch.equal(tiny_model.encode_condition(photo, photo, light, camera).base_x, bases[0])
 
@@ -231,7 +232,7 @@ def pipeline_calls(monkeypatch):
 
 
 def test_sampling_options_reach_the_pipeline(tiny_model, tmp_path, capsys, pipeline_calls):
-    """``relight generate --steps --samples`` and ``relight eval relight --steps`` reach
+    """``relight generate --steps --samples`` and ``relight eval relighting --steps`` reach
     ``RelightPipeline.__call__`` and are recorded; refused for methods that do not
     sample, and below 1."""
     import json
@@ -258,7 +259,7 @@ def test_sampling_options_reach_the_pipeline(tiny_model, tmp_path, capsys, pipel
     assert not (tmp_path / "b").exists() and not (tmp_path / "c").exists()
 
     calls.clear()
-    ev = ["eval", "relight", "--count", "1", "--size", "16", "--out"]
+    ev = ["eval", "relighting", "--count", "1", "--size", "16", "--out"]
     assert (
         main(
             [
@@ -285,7 +286,7 @@ def test_sampling_options_reach_the_pipeline(tiny_model, tmp_path, capsys, pipel
 
 
 def test_eval_compares_several_step_counts_in_one_run(tiny_model, tmp_path, capsys, pipeline_calls):
-    """``relight eval relight --steps 2,1``: one row per setting, each sampled with its own
+    """``relight eval relighting --steps 2,1``: one row per setting, each sampled with its own
     step count; a bad list is refused before any model is loaded."""
     import json
 
@@ -294,7 +295,7 @@ def test_eval_compares_several_step_counts_in_one_run(tiny_model, tmp_path, caps
     tiny_model.save_pretrained(tmp_path / "m")
     ev = [
         "eval",
-        "relight",
+        "relighting",
         "--count",
         "1",
         "--size",

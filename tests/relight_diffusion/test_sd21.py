@@ -131,8 +131,8 @@ def test_training_step_moves_only_trainable_parts(sd21_model):
     gen = torch.Generator().manual_seed(1)
     batch = {
         "images": torch.rand(1, 2, 3, 64, 64, generator=gen),
-        "light": torch.tensor([[[0.0, 0.0, 4.0], [1.0, 1.0, 5.0]]]),
-        "camera": torch.tensor([[[0.0, 0.0, 4.0], [0.0, 0.0, 4.0]]]),
+        "light_pos": torch.tensor([[[0.0, 0.0, 4.0], [1.0, 1.0, 5.0]]]),
+        "camera_pos": torch.tensor([[[0.0, 0.0, 4.0], [0.0, 0.0, 4.0]]]),
     }
     m.train()
     loss = diffusion_loss(m, make_train_scheduler(), batch, torch.Generator().manual_seed(0))
@@ -165,10 +165,10 @@ def test_save_load_stores_only_trained_weights(sd21_model, tmp_path):
 
 def test_pipeline_decodes_to_images(sd21_model):
     pipe = RelightPipeline(sd21_model)
-    lights = torch.tensor([[1.0, 1.0, 4.0], [-2.0, 0.5, 6.0]])
+    light_pos = torch.tensor([[1.0, 1.0, 4.0], [-2.0, 0.5, 6.0]])
     out = pipe(
         torch.rand(3, 64, 64),
-        lights,
+        light_pos,
         torch.tensor([0.0, 0.0, 4.0]),
         num_inference_steps=2,
         generator=torch.Generator().manual_seed(0),

@@ -1,13 +1,16 @@
-"""Image metrics of the relighting evaluation (SPEC section 7, Table 1).
+"""Image metrics of the evaluations (SPEC section 7: Table 1, relighting; Table 2,
+the estimator's re-renderings), in one place below both model packages.
 
-Every metric compares *tone-mapped* images: display values in [0, 1]
-(``kernels.tonemap``: clamp then x^(1/2.2), SPEC section 2), laid out ``[N, 3, H, W]``
-(any leading dims are flattened into N), and returns one value per image ``[N]``
-(float64) so callers can average over images, materials or lights as they like.
+Every metric compares *tone-mapped* images: display values in [0, 1], in the project's
+display space (``kernels.tonemap``: clamp then x^(1/2.2) of linear RGB radiance, SPEC
+section 2; not sRGB-encoded), laid out ``[..., 3, H, W]`` (the leading dims are
+flattened into N), and returns one value per image ``[N]`` (float64, computed on the
+CPU in float64) so callers can average over images, materials or lights as they like.
 
 - ``mse``, ``rmse`` (square root of each image's MSE), ``psnr`` (peak 1):
   ``10 log10(1 / MSE)``, with MSE floored at ``MSE_FLOOR`` so identical images give a
-  finite 100 dB.
+  finite 100 dB; ``psnr_from_mse`` for an MSE pooled over several images (the
+  estimator's per-material PSNR over all its lights).
 - ``ssim``: ``kornia.metrics.ssim``, 11 x 11 Gaussian window (sigma 1.5, Wang et al.
   2004), averaged over pixels and channels.
 - ``flip``: mean LDR-FLIP (Andersson et al. 2020, ``flip_evaluator``). FLIP wants
@@ -26,7 +29,20 @@ import numpy as np
 import torch
 from kornia.metrics import ssim as _kornia_ssim
 
-__all__ = ["mse", "rmse", "psnr", "ssim", "flip", "lpips_available", "METRICS", "SSIM_WINDOW", "MSE_FLOOR"]
+from kernels.checks import check_shape
+
+__all__ = [
+    "mse",
+    "rmse",
+    "psnr",
+    "psnr_from_mse",
+    "ssim",
+    "flip",
+    "lpips_available",
+    "METRICS",
+    "SSIM_WINDOW",
+    "MSE_FLOOR",
+]
 
 #: SSIM Gaussian window side (Wang et al. 2004: 11 x 11, sigma 1.5; kornia's sigma).
 SSIM_WINDOW = 11
@@ -34,18 +50,14 @@ SSIM_WINDOW = 11
 MSE_FLOOR = 1e-10
 
 
-def _flat(name: str, x: torch.Tensor) -> torch.Tensor:
-    if not isinstance(x, torch.Tensor):
-        raise TypeError(f"{name} must be a torch.Tensor, got {type(x).__name__}")
-    if x.dim() < 3 or x.shape[-3] != 3:
-        raise ValueError(f"{name} must have shape [..., 3, H, W], got {tuple(x.shape)}")
-    return x.reshape(-1, *x.shape[-3:])
-
-
 def _pair(pred: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    p, t = _flat("pred", pred), _flat("target", target)
-    if p.shape != t.shape:
-        raise ValueError(f"pred and target must have the same shape, got {tuple(pred.shape)} and {tuple(target.shape)}")
+    """Images ``[..., 3, H, W]`` (any dtype) flattened to ``[N, 3, H, W]`` float64 on the
+    CPU; the two must hold the same N images of the same size."""
+    dims = check_shape(pred, "* 3 H W", name="pred", dtypes=None)
+    check_shape(target, "* 3 H W", name="target", dims=dims, dtypes=None)
+    p, t = pred.reshape(-1, *pred.shape[-3:]), target.reshape(-1, *target.shape[-3:])
+    if p.shape[0] != t.shape[0]:
+        raise ValueError(f"pred and target must hold as many images, got {tuple(pred.shape)} and {tuple(target.shape)}")
     return p.detach().double().cpu(), t.detach().double().cpu()
 
 
@@ -62,7 +74,13 @@ def rmse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 
 def psnr(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """PSNR in dB per image ``[N]`` for values in [0, 1] (peak 1)."""
-    return -10.0 * torch.log10(mse(pred, target).clamp_min(MSE_FLOOR))
+    return psnr_from_mse(mse(pred, target))
+
+
+def psnr_from_mse(mse: torch.Tensor | float) -> torch.Tensor:
+    """PSNR in dB (peak 1) of mean squared errors of [0, 1] images, floored at
+    ``MSE_FLOOR``: ``-10 log10(max(mse, MSE_FLOOR))``, elementwise, float64."""
+    return -10.0 * torch.log10(torch.as_tensor(mse, dtype=torch.float64).clamp_min(MSE_FLOOR))
 
 
 def ssim(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
