@@ -109,10 +109,13 @@ def load_texture_folder(
 ) -> Material:
     """Read a real-texture material folder (``TEXTURE_FILES``) into a ``Material``.
 
-    The defaults are the MatSynth-family convention, which the real-dev materials follow
-    (checked by rendering them: /work/wt/notes/domain_ready.md): diffuse and specular
-    sRGB-encoded, roughness linear, normal ``(n + 1) / 2`` with green = +y (OpenGL). The
-    switches exist to test the other hypotheses (a DirectX normal map has green = -y).
+    The defaults are the MatSynth-family convention, which the real-dev materials follow:
+    diffuse and specular sRGB-encoded, roughness linear, normal ``(n + 1) / 2`` with
+    green = +y (OpenGL). Checked on them: against the source's own render.png, sRGB
+    diffuse beats linear by ~3 dB, sRGB specular (61/255 -> F0 0.047) beats linear by
+    2 dB, linear roughness beats sRGB by 1 dB; the normals' slope field is nearly curl-free
+    read as OpenGL (mean |curl| / |div| 0.15-0.26) and not as DirectX (0.53-1.08). The
+    switches exist to test other hypotheses (a DirectX normal map has green = -y).
 
     Returns:
         Unbatched ``Material`` (``[C, H, W]`` float32, linear values), validated.
