@@ -299,8 +299,6 @@ class DomainGroups(Dataset):
         return {
             "images": images,
             "clean": clean,
-            "light": geometry.light,
-            "camera": geometry.camera,
             "light_pos": geometry.light,
             "camera_pos": geometry.camera,
             "intensity": intensity,
