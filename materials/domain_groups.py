@@ -10,9 +10,8 @@ with the same keys, so a trainer can switch datasets without other changes:
   as drawn); view 0 is the flash photo (light next to the camera).
 - ``clean`` ``[V, 3, H, W]`` float32: the same views before noise, clipping and
   quantisation (exposure and white balance applied), e.g. relighting targets.
-- ``light`` / ``camera`` ``[V, 3]`` float32 positions in the model's frame (``dgrsise``
-  units, plane side 4); also under ``light_pos`` / ``camera_pos`` (the names the project
-  is moving to; both are provided while trainers migrate).
+- ``light_pos`` / ``camera_pos`` ``[V, 3]`` float32 positions in the model's frame
+  (``dgrsise`` units, plane side 4).
 - ``intensity`` ``[V, 3]`` float32 and ``inverse_square`` (bool tensor): rendering the
   maps with ``kernels.render(..., preset="dgrsise", intensity=intensity[v],
   inverse_square=inverse_square)`` reproduces ``clean[v]`` (e.g. for a rendering loss or
