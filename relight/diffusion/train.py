@@ -23,7 +23,7 @@ from torch.utils.data import DataLoader
 from tqdm.auto import tqdm
 
 from materials.dataset import TRAIN_SEEDS, GroupConfig, RenderedGroups
-from relight.diffusion.config import RelightConfig
+from relight.diffusion.config import TINY_TRAINING_DEFAULTS
 from relight.diffusion.model import RelightDiffusion, make_train_scheduler
 from relight.diffusion.objective import diffusion_loss
 
@@ -147,15 +147,19 @@ def main(cfg: TrainConfig) -> Path:
         model = RelightDiffusion.from_pretrained(ckpt / "model")
     else:
         channels = tuple(int(c) for c in cfg.block_out_channels.split(","))
+        # The tiny preset's switches (photo_concat, residual, data_scale) at the values a new
+        # run uses; this run's flags (channels, base, ...) override the rest of the table.
+        new_run = TINY_TRAINING_DEFAULTS if cfg.preset == "tiny" else {}
         model = RelightDiffusion(
-            RelightConfig(
-                preset=cfg.preset,
-                sd21_path=cfg.sd21_path or None,
-                resolution=cfg.resolution,
-                ablation=cfg.ablation,
-                block_out_channels=channels,
-                base=cfg.base,
-            )
+            **{
+                **new_run,
+                "preset": cfg.preset,
+                "sd21_path": cfg.sd21_path or None,
+                "resolution": cfg.resolution,
+                "ablation": cfg.ablation,
+                "block_out_channels": channels,
+                "base": cfg.base,
+            }
         )
     optimizer = torch.optim.AdamW(_trainable(model), lr=cfg.lr)
     step, history, state = 0, [], {}
