@@ -55,7 +55,10 @@ def load_diffusion_relighter(checkpoint: str | os.PathLike | None = None) -> Dif
     ``model/``), or (None) the shipped tiny model, ``weights_dir("diffusion")``; the sampler
     from the folder's ``scheduler_config.json`` when it has one (``RelightPipeline.from_pretrained``)."""
     folder = Path(checkpoint) if checkpoint is not None else weights_dir("diffusion")
-    if not (folder / CONFIG_NAME).is_file() and (folder / "model" / CONFIG_NAME).is_file():
+    if not (folder / CONFIG_NAME).is_file():
+        # A training checkpoint folder holds the model under model/.
+        if not (folder / "model" / CONFIG_NAME).is_file():
+            raise FileNotFoundError(f"{folder}: not a relighting checkpoint (no {CONFIG_NAME} there or in model/)")
         folder = folder / "model"
     pipeline = RelightPipeline.from_pretrained(folder)
     return DiffusionRelighter(pipeline.model, scheduler=pipeline.scheduler)

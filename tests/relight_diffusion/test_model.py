@@ -147,6 +147,8 @@ def test_registered_behind_the_common_interface(tiny_model, tmp_path):
     lights = torch.tensor([[[1.0, 1.0, 4.0], [-1.0, 2.0, 5.0], [0.0, -2.0, 6.0]]]).repeat(2, 1, 1)
     out = relighter.relight(photo, camera, lights, generator=torch.Generator().manual_seed(0))
     assert out.shape == (2, 3, 3, 16, 16) and getattr(relighter, "stochastic", False)
+    with pytest.raises(FileNotFoundError, match="not a relighting checkpoint"):
+        get_relighter("diffusion", tmp_path)  # the command line reports FileNotFoundError
     # float16 storage: loaded weights equal the originals rounded to half precision
     loaded = relighter.pipeline.model
     for (name, a), b in zip(tiny_model.state_dict().items(), loaded.state_dict().values()):
