@@ -7,7 +7,7 @@ Training is a separate entry point, ``estimator.train.main(TrainConfig(...))`` o
 Evaluation from the shell: ``python -m estimator evaluate --model FOLDER``.
 """
 
-from estimator.config import EstimatorConfig
+from estimator.config import TRAINING_DEFAULTS, EstimatorConfig
 from estimator.evaluate import HELDOUT_LIGHTS, evaluate, write_report
 from estimator.losses import estimator_loss, map_l1
 from estimator.model import SVBRDFEstimator, check_views
@@ -15,6 +15,7 @@ from estimator.refine import RefineResult, refine, refine_maps
 
 __all__ = [
     "EstimatorConfig",
+    "TRAINING_DEFAULTS",
     "SVBRDFEstimator",
     "check_views",
     "estimator_loss",

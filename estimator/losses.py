@@ -14,7 +14,7 @@
 Both weights default to 1.0: at initialisation the summed map L1 and the rendering loss
 are both ~1.0 (measured on the first training steps), so neither term dominates; no
 tuning beyond that was done for the first training run. ``normal_weight`` (default 1)
-was raised for the fine-tuning run of the shipped model (``estimator/weights/TRAINING.md``):
+was raised for the fine-tuning run of the shipped model (``weights/estimator/TRAINING.md``):
 procedural normals are close to flat, so their L1 is the smallest of the four terms and
 its gradient the weakest, and the 8-view model had not learnt to read relief from the
 extra lightings.

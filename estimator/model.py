@@ -8,7 +8,7 @@ Data flow for a batch of B materials seen in V views (any V >= 1), shapes symbol
    keeps dark texture and the highlight on one scale) concatenated with its 9-channel
    l/v/h map (``kernels.lvh_maps``), so the encoder knows where each view was lit from.
 2. Shared per-view encoder: levels of strided 3x3 convs (GroupNorm, SiLU) on the
-   ``B * V`` views (default 16-32-64-128-192 channels over 5 levels, ``EstimatorConfig``).
+   ``B * V`` views (default 16-32-64-128-192 channels over 5 levels, ``SVBRDFEstimator``'s arguments).
 3. Cross-view correlation at every level, a DeepSets block: each view's features get a
    residual ``conv1x1([f_v, mean_v f, max_v f])``, so every view sees what the others
    see before the next level; then the views are pooled (``conv1x1([mean_v f, max_v f])``)
@@ -33,10 +33,8 @@ Output: a batched ``materials.types.Material`` (maps ``[B, C, H, W]``, linear, f
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Iterator, Sequence
-from pathlib import Path
 
 import torch
 import torch.nn as nn
@@ -45,9 +43,9 @@ from diffusers.configuration_utils import ConfigMixin, register_to_config
 from diffusers.models.modeling_utils import ModelMixin
 
 import kernels
-from estimator.config import FIELDS_ADDED_SINCE, EstimatorConfig
 from kernels.checks import FLOATING_DTYPES, check_finite, check_same, check_shape
 from materials.types import Material
+from weights import StrictLoadingMixin
 
 __all__ = ["SVBRDFEstimator", "check_views", "INPUT_SHIFT", "INPUT_SCALE", "NORMAL_MIN_Z"]
 
@@ -191,8 +189,36 @@ def check_views(images, light_pos, camera_pos, *, multiple: int = 1) -> tuple[to
     return images, out[0], out[1]
 
 
-class SVBRDFEstimator(ModelMixin, ConfigMixin):
+class SVBRDFEstimator(StrictLoadingMixin, ModelMixin, ConfigMixin):
     """N-view SVBRDF estimator: ``(images, light_pos, camera_pos) -> Material`` (module docstring).
+
+    The arguments are the architecture (``estimator/DESIGN.md``), saved in a checkpoint's
+    ``config.json``; ``from_pretrained`` is diffusers' and refuses a missing or unexpected
+    key (``weights.StrictLoadingMixin``). An argument added after checkpoints were saved
+    defaults to what those checkpoints were (``shading_channels=0``), so an older
+    ``config.json`` without it loads as trained; a new training run passes
+    ``estimator.config.TRAINING_DEFAULTS`` (``EstimatorConfig()`` holds them).
+
+    Args:
+        base_channels: channels of the full-resolution encoder level; level ``i`` has
+            ``base_channels * channel_mults[i]``.
+        channel_mults: one multiplier per encoder level; level 0 is full resolution and
+            each further level halves H and W with a stride-2 conv. The default, 16-32-64-
+            128-192 over 5 levels (1.9 M parameters, 7.7 MB of safetensors), was measured
+            on the 2-core CPU: a 32-64-128-256 encoder over 4 levels costs 2-3x more per
+            step at 64 x 64 for V = 8, almost all of it in the full-resolution per-view
+            convs, while the cheap deep levels are where the parameters are.
+        blocks_per_level: 3x3 conv blocks (GroupNorm, SiLU) after each level's entry conv.
+        adapter_width: hidden channels of each per-map adapter head.
+        norm_groups: GroupNorm groups (reduced to a divisor of the channel count).
+        plane_size: side of the material plane used for the l/v/h maps (``dgrsise``: 4).
+        shading_channels: width of the full-resolution shading branch that feeds the normal
+            map (``estimator/DESIGN.md``, "Shading branch"); 0 leaves it out (the
+            architecture before 2026-12-02, and of checkpoints saved without the field).
+            The shipped model and new training runs use 16.
+    Raises:
+        ValueError: naming the argument, for non-positive sizes, empty or non-positive
+            ``channel_mults``, a negative ``shading_channels`` or one with a single level.
 
     Example:
         >>> import torch
@@ -205,31 +231,35 @@ class SVBRDFEstimator(ModelMixin, ConfigMixin):
         torch.Size([2, 3, 32, 32])
     """
 
-    config_name = "config.json"
-
     @register_to_config
     def __init__(
         self,
         base_channels: int = 16,
-        channel_mults: Sequence[int] = (1, 2, 4, 8, 12),
+        channel_mults: tuple[int, ...] = (1, 2, 4, 8, 12),
         blocks_per_level: int = 1,
         adapter_width: int = 32,
         norm_groups: int = 8,
         plane_size: float = 4.0,
-        shading_channels: int = 16,
+        shading_channels: int = 0,
     ):
         super().__init__()
-        arch = EstimatorConfig(
-            base_channels=base_channels,
-            channel_mults=tuple(channel_mults),
-            blocks_per_level=blocks_per_level,
-            adapter_width=adapter_width,
-            norm_groups=norm_groups,
-            plane_size=plane_size,
-            shading_channels=shading_channels,
-        )
-        self.arch = arch
-        widths = [base_channels * m for m in arch.channel_mults]
+        if base_channels < 1 or adapter_width < 1 or norm_groups < 1:
+            raise ValueError(
+                f"base_channels, adapter_width and norm_groups must be positive, got {base_channels}, "
+                f"{adapter_width}, {norm_groups}"
+            )
+        if len(channel_mults) < 1 or any(int(m) < 1 for m in channel_mults):
+            raise ValueError(f"channel_mults must be a non-empty tuple of positive ints, got {channel_mults}")
+        if shading_channels < 0:
+            raise ValueError(f"shading_channels must be >= 0, got {shading_channels}")
+        if shading_channels and len(channel_mults) < 2:
+            # The branch rides on the level-0 skip, which with one level is the latent.
+            raise ValueError("shading_channels needs at least two levels (channel_mults)")
+        if blocks_per_level < 0:
+            raise ValueError(f"blocks_per_level must be >= 0, got {blocks_per_level}")
+        if plane_size <= 0:
+            raise ValueError(f"plane_size must be positive, got {plane_size}")
+        widths = [base_channels * int(m) for m in channel_mults]
         g = norm_groups
 
         self.encoder = nn.ModuleList()
@@ -269,19 +299,6 @@ class SVBRDFEstimator(ModelMixin, ConfigMixin):
             nn.init.zeros_(self.shading_head.out.weight)
             nn.init.zeros_(self.shading_head.out.bias)
 
-    @classmethod
-    def from_pretrained(cls, pretrained_model_name_or_path, **kwargs):
-        """diffusers' ``from_pretrained``; a local checkpoint saved before a field existed
-        (``FIELDS_ADDED_SINCE``, e.g. no ``shading_channels``: no shading branch) loads as
-        it was saved, rather than with today's default and uninitialised weights."""
-        config = Path(pretrained_model_name_or_path) / (kwargs.get("subfolder") or "") / cls.config_name
-        if config.is_file():
-            saved = json.loads(config.read_text())
-            for name, absent in FIELDS_ADDED_SINCE.items():
-                if name not in saved:
-                    kwargs.setdefault(name, absent)
-        return super().from_pretrained(pretrained_model_name_or_path, **kwargs)
-
     # ------------------------------------------------------------------ stages
     def encode(self, images: torch.Tensor, light_pos: torch.Tensor, camera_pos: torch.Tensor) -> list[torch.Tensor]:
         """Per-view encoding, cross-view correlation and pooling.
@@ -295,14 +312,14 @@ class SVBRDFEstimator(ModelMixin, ConfigMixin):
             level 0 carries its ``C_s`` channels after the ``C_0`` skip channels
             (``decode`` passes them on to the heads).
         """
-        images, light_pos, camera_pos = check_views(images, light_pos, camera_pos, multiple=self.arch.downsample_factor)
+        images, light_pos, camera_pos = check_views(images, light_pos, camera_pos, multiple=self.downsample_factor)
         b, v, _, h, w = images.shape
         dtype = self.dtype
         lvh = kernels.lvh_maps(
             light_pos.detach().to(dtype).contiguous(),
             camera_pos.detach().to(dtype).contiguous(),
             (h, w),
-            plane_size=self.arch.plane_size,
+            plane_size=self.config.plane_size,
         )
         log_image = torch.log(images.to(dtype).clamp_min(0) + kernels.LOG_EPS)
         encoded = (log_image + INPUT_SHIFT) * INPUT_SCALE
@@ -366,7 +383,20 @@ class SVBRDFEstimator(ModelMixin, ConfigMixin):
     @property
     def _decoder_channels(self) -> int:
         """C_0: the decoder's full-resolution channels (the shading branch's follow them)."""
-        return self.arch.base_channels * self.arch.channel_mults[0]
+        return self.config.base_channels * self.config.channel_mults[0]
+
+    @property
+    def downsample_factor(self) -> int:
+        """H and W must be multiples of this (2 ** (levels - 1))."""
+        return 2 ** (len(self.config.channel_mults) - 1)
+
+    @property
+    def arch(self):
+        """The architecture as an ``estimator.config.EstimatorConfig`` (comparable, hashable)."""
+        # Imported here: estimator.config reads this class's signature, so it imports this module.
+        from estimator.config import EstimatorConfig
+
+        return EstimatorConfig.from_saved(self.config)
 
     # ------------------------------------------------------------------ parameter groups
     def adapter_parameters(self) -> Iterator[nn.Parameter]:
@@ -378,5 +408,5 @@ class SVBRDFEstimator(ModelMixin, ConfigMixin):
 
     def latent_shape(self, batch: int, size: tuple[int, int]) -> tuple[int, int, int, int]:
         """Shape of the bottleneck latent for ``batch`` images of ``size`` (H, W)."""
-        f = self.arch.downsample_factor
-        return (batch, self.arch.base_channels * self.arch.channel_mults[-1], size[0] // f, size[1] // f)
+        f = self.downsample_factor
+        return (batch, self.config.base_channels * self.config.channel_mults[-1], size[0] // f, size[1] // f)

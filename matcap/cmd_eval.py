@@ -101,11 +101,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run_estimator(args) -> int:
     _note_deprecated(args)
     from estimator.evaluate import cli
-    from matcap.estimate import DEFAULT_ESTIMATOR
+    from weights import weights_dir
 
     flags = [
         "--model",
-        str(args.model or DEFAULT_ESTIMATOR),
+        str(args.model or weights_dir("estimator")),
         "--num",
         str(args.num),
         "--size",

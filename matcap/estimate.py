@@ -17,16 +17,15 @@ from estimator.model import SVBRDFEstimator
 from estimator.refine import refine
 from kernels.presets import get_preset
 from materials.types import Capture, Material
+from weights import weights_dir
 
-__all__ = ["estimate_material", "load_estimator", "DEFAULT_ESTIMATOR"]
-
-#: The shipped estimator checkpoint (safetensors + config.json), package data.
-DEFAULT_ESTIMATOR = Path(__file__).resolve().parent.parent / "estimator" / "weights"
+__all__ = ["estimate_material", "load_estimator"]
 
 
 def load_estimator(path: str | Path | None = None) -> SVBRDFEstimator:
-    """Load an estimator folder (``save_pretrained`` layout); None: the shipped one."""
-    folder = Path(path) if path is not None else DEFAULT_ESTIMATOR
+    """Load an estimator folder (``save_pretrained`` layout); None: the shipped one,
+    ``weights.weights_dir("estimator")``."""
+    folder = Path(path) if path is not None else weights_dir("estimator")
     if not (folder / "config.json").is_file():
         raise FileNotFoundError(f"{folder}: no estimator checkpoint (config.json missing)")
     return SVBRDFEstimator.from_pretrained(folder).eval()
@@ -70,7 +69,7 @@ def estimate_material(
     preset = get_preset(capture.preset)
     plane = capture.plane_size or preset.plane_size
     scale = model.config.plane_size / plane
-    images = _to_multiple(capture.images, model.arch.downsample_factor)[None]
+    images = _to_multiple(capture.images, model.downsample_factor)[None]
     light_pos, camera_pos = capture.light_pos[None] * scale, capture.camera_pos[None] * scale
     history: list[float] = []
     if refine_steps > 0:

@@ -12,7 +12,7 @@ Layout and dependency direction (each layer imports only those to its left)::
   (``get_relighter``, ``register_relighter``).
 - ``relight.bieron``: the deterministic single-image relighting network after Bieron,
   Tong and Peers 2023 (the paper's Table 1 competitor), its thin training entry point
-  and checkpoints; shipped weights in ``relight/weights/bieron``.
+  and checkpoints; shipped weights in ``weights/bieron``.
 - ``relight.evaluate``: Table-1-style evaluation on held-out procedural materials
   (``relight eval relighting``), with the image metrics of ``materials.metrics``.
 

@@ -27,7 +27,7 @@ without this module knowing it). Built in:
 - ``"input"``: the photo unchanged for every target (the trivial baseline).
 - ``"lambertian"``: the analytic baseline (``LambertianRelighter``).
 - ``"bieron"``: ``relight.bieron.BieronRelighter`` behind ``NetworkRelighter``; with no
-  checkpoint, the weights shipped in ``relight/weights/bieron``.
+  checkpoint, the shipped weights, ``weights.weights_dir("bieron")``.
 """
 
 from __future__ import annotations
@@ -44,6 +44,7 @@ import kernels
 from kernels.checks import check_above_plane, check_finite, check_same, check_shape
 from kernels.presets import RenderPreset, get_preset
 from relight.shading import lambertian_relight
+from weights import weights_dir, weights_root
 
 __all__ = [
     "Relighter",
@@ -57,8 +58,9 @@ __all__ = [
     "SHIPPED_WEIGHTS",
 ]
 
-#: Package folder of the shipped checkpoints (``<name>/config.json`` + safetensors).
-SHIPPED_WEIGHTS = Path(__file__).resolve().parent / "weights"
+#: Deprecated (kept for one release): the shipped weights' root at import time. Loaders
+#: resolve ``weights.weights_dir(name)`` at call time instead.
+SHIPPED_WEIGHTS = weights_root()
 
 
 def check_relight_inputs(photo, light_pos, camera_pos) -> tuple[int, int, int, int]:
@@ -176,7 +178,7 @@ class NetworkRelighter(Relighter):
 def _load_bieron(checkpoint: str | os.PathLike | None) -> Relighter:
     from relight.bieron.model import BieronRelighter
 
-    folder = Path(checkpoint) if checkpoint is not None else SHIPPED_WEIGHTS / "bieron"
+    folder = Path(checkpoint) if checkpoint is not None else weights_dir("bieron")
     if not (folder / "config.json").is_file():
         # A training checkpoint folder (step_NNNNNNN) holds the model under model/.
         if (folder / "model" / "config.json").is_file():

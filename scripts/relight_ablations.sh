@@ -9,7 +9,7 @@
 # on the 16 held-out materials into OUT_ROOT/abl_<name>/ (default: runs/relight_ablations
 # under the repository root). The `full` row is evaluated too when its snapshot
 # CKPT_ROOT/relight_v3/step_000600/model exists: the 600-step snapshot (`--keep-every 300`)
-# of the base="photo" run in relight/weights/diffusion/TRAINING.md ("Earlier checkpoints").
+# of the base="photo" run in weights/diffusion/TRAINING.md ("Earlier checkpoints").
 # PYTHON selects the interpreter (default .venv/bin/python).
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -21,7 +21,7 @@ import torch
 from PIL import Image
 
 REPO = Path(__file__).resolve().parents[1]
-PACKAGES = ("kernels", "materials", "relight", "estimator", "matcap")
+PACKAGES = ("kernels", "materials", "relight", "estimator", "matcap", "weights")
 
 #: Allowed anywhere in a package: code, type-checker markers and its prose documents.
 CODE_PATTERNS = ("*.py", "*.pyi", "py.typed")
@@ -49,9 +49,9 @@ MACHINE_PATH_PENDING = {
     "relight/bieron/train.py",
     # Training records' commands (`--ckpt-dir` under the machine's checkpoint root): the
     # weights package, which moves and converts the weights with their records.
-    "estimator/weights/TRAINING.md",
-    "relight/weights/bieron/TRAINING.md",
-    "relight/weights/diffusion/TRAINING.md",
+    "weights/estimator/TRAINING.md",
+    "weights/bieron/TRAINING.md",
+    "weights/diffusion/TRAINING.md",
 }
 #: Byproducts never committed (.gitignore), skipped by the file-system fallback.
 IGNORED_PARTS = {".git", ".venv", "__pycache__", ".pytest_cache", ".ruff_cache", ".mypy_cache", "runs", "out", "build"}
@@ -84,7 +84,7 @@ def allowed_in_package(path: str) -> bool:
     name = parts[-1]
     if any(fnmatch(name, pattern) for pattern in CODE_PATTERNS) or name in DOC_NAMES:
         return True
-    in_weights = "weights" in parts[1:-1]
+    in_weights = "weights" in parts[:-1]
     return in_weights and any(fnmatch(name, pattern) for pattern in WEIGHTS_PATTERNS)
 
 
@@ -92,14 +92,14 @@ def test_allowed_in_package_rules():
     # The rules themselves, on names of each kind (the real tree is checked below).
     assert allowed_in_package("relight/diffusion/model.py")
     assert allowed_in_package("estimator/DESIGN.md")
-    assert allowed_in_package("relight/weights/diffusion/scheduler_config.json")
-    assert allowed_in_package("estimator/weights/loss_curve_stage5.png")
+    assert allowed_in_package("weights/diffusion/scheduler_config.json")
+    assert allowed_in_package("weights/estimator/loss_curve_stage5.png")
     assert not allowed_in_package("estimator/results/estimator_eval.json")
     assert not allowed_in_package("relight/diffusion/results/relight_eval.png")
     assert not allowed_in_package("relight/diffusion/results/ablations/run_ablations.sh")
     assert not allowed_in_package("relight/diffusion/bench_relight.txt")
     assert not allowed_in_package("estimator/notes.md")
-    assert not allowed_in_package("estimator/weights/picture.png")
+    assert not allowed_in_package("weights/estimator/picture.png")
 
 
 def test_packages_hold_only_code_configs_and_weights():

@@ -3,7 +3,7 @@
 
 ``model.BieronRelighter`` holds the weights; ``train`` is the thin training entry point
 (``python -m relight.bieron.train``). The shipped checkpoint lives in
-``relight/weights/bieron/`` (see its ``TRAINING.md``).
+``weights/bieron/`` (``weights.weights_dir("bieron")``; see its ``TRAINING.md``).
 """
 
 from relight.bieron.model import BieronRelighter

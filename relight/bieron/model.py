@@ -52,9 +52,11 @@ from diffusers.models.modeling_utils import ModelMixin
 import kernels
 from kernels.presets import get_preset
 from relight.shading import lambertian_relight
+from weights import StrictLoadingMixin
 
 __all__ = [
     "BieronRelighter",
+    "TRAINING_DEFAULTS",
     "encode_photo",
     "LOG_SHIFT",
     "LOG_SCALE",
@@ -76,6 +78,10 @@ LVH_CHANNELS = 9
 _VZ = 5
 #: Output parameterisations (module docstring, steps 4 and 5).
 RESIDUALS = ("lambertian", "none")
+#: Arguments of the shipped network that differ from ``BieronRelighter``'s defaults (which
+#: keep the behaviour of checkpoints saved before each argument existed): what a new
+#: training run passes (``weights/bieron/TRAINING.md``: ``--residual lambertian``).
+TRAINING_DEFAULTS: dict = {"residual": "lambertian"}
 
 
 def encode_photo(photo: torch.Tensor, vz: torch.Tensor) -> torch.Tensor:
@@ -114,8 +120,13 @@ class ResBlock(nn.Module):
         return self.skip(x) + h
 
 
-class BieronRelighter(ModelMixin, ConfigMixin):
+class BieronRelighter(StrictLoadingMixin, ModelMixin, ConfigMixin):
     """Single-image neural material relighting network (module docstring).
+
+    Persistence is diffusers' (``config.json`` + ``diffusion_pytorch_model.safetensors``);
+    ``from_pretrained`` refuses a missing or unexpected key (``weights.StrictLoadingMixin``).
+    A new argument defaults to what checkpoints saved before it were (``residual="none"``),
+    so their config loads as trained; a new run passes ``TRAINING_DEFAULTS``.
 
     Args:
         base_channels: channels of the full-resolution level.
@@ -127,6 +138,9 @@ class BieronRelighter(ModelMixin, ConfigMixin):
             l/v/h maps.
         residual: ``"lambertian"`` (predict a correction to the analytic re-shading,
             module docstring step 5) or ``"none"`` (predict the image directly).
+    Raises:
+        ValueError: an unknown ``residual``, a non-positive size, or empty
+            ``channel_mults``; naming the argument.
 
     Example:
         >>> import torch

@@ -1,12 +1,14 @@
-"""The relighting diffusion model (paper section 4): config, model, objective, pipeline."""
+"""The relighting diffusion model (paper section 4): settings tables, model, objective, pipeline."""
 
-from relight.diffusion.config import ABLATIONS, RelightConfig
+from relight.diffusion.config import ABLATIONS, BASES, PRESETS, TINY_TRAINING_DEFAULTS
 from relight.diffusion.model import RelightDiffusion, make_train_scheduler
 from relight.diffusion.pipeline import DEFAULT_STEPS, RelightPipeline, make_sample_scheduler
 
 __all__ = [
-    "RelightConfig",
     "ABLATIONS",
+    "BASES",
+    "PRESETS",
+    "TINY_TRAINING_DEFAULTS",
     "RelightDiffusion",
     "RelightPipeline",
     "make_train_scheduler",

@@ -1,9 +1,15 @@
 """``RelightPipeline``: one flash photo + target lights -> relit images (diffusers style).
 
 Inference glue only: the model holds the weights, the scheduler holds the step rule.
+A saved pipeline is the model's folder plus the scheduler's ``scheduler_config.json``
+beside it (``save_pretrained`` / ``from_pretrained``); a folder without one (a training
+checkpoint) samples with ``make_sample_scheduler()``.
 """
 
 from __future__ import annotations
+
+import os
+from pathlib import Path
 
 import torch
 from diffusers import DDIMScheduler
@@ -12,7 +18,10 @@ from tqdm.auto import tqdm
 from kernels.checks import FLOATING_DTYPES, ShapeDims, check_above_plane, check_finite, check_shape
 from relight.diffusion.model import RelightDiffusion
 
-__all__ = ["RelightPipeline", "DEFAULT_STEPS", "make_sample_scheduler"]
+__all__ = ["RelightPipeline", "DEFAULT_STEPS", "SCHEDULER_CONFIG_NAME", "make_sample_scheduler"]
+
+#: The sampler's settings beside the weights (diffusers' ``SchedulerMixin`` file name).
+SCHEDULER_CONFIG_NAME = DDIMScheduler.config_name
 
 #: Sampling steps (SPEC section 4: about 20 steps, guidance 1).
 DEFAULT_STEPS = 20
@@ -38,6 +47,22 @@ class RelightPipeline:
     def __init__(self, model: RelightDiffusion, scheduler: DDIMScheduler | None = None):
         self.model = model
         self.scheduler = scheduler or make_sample_scheduler()
+
+    @classmethod
+    def from_pretrained(cls, folder: str | os.PathLike) -> RelightPipeline:
+        """The model of ``folder`` (``RelightDiffusion.from_pretrained``, strict) and its
+        sampler from ``scheduler_config.json`` there, or ``make_sample_scheduler()`` if
+        the folder has none."""
+        folder = Path(folder)
+        model = RelightDiffusion.from_pretrained(folder)
+        scheduler = DDIMScheduler.from_pretrained(folder) if (folder / SCHEDULER_CONFIG_NAME).is_file() else None
+        return cls(model, scheduler)
+
+    def save_pretrained(self, folder: str | os.PathLike, *, half: bool = False) -> None:
+        """Write the model (``RelightDiffusion.save_pretrained``, ``half`` as there) and the
+        scheduler's ``scheduler_config.json`` into ``folder``."""
+        self.model.save_pretrained(folder, half=half)
+        self.scheduler.save_pretrained(folder)
 
     @torch.no_grad()
     def __call__(

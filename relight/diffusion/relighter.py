@@ -7,10 +7,12 @@ import os
 from pathlib import Path
 
 import torch
+from diffusers import DDIMScheduler
 
 from relight.diffusion.model import CONFIG_NAME, RelightDiffusion
 from relight.diffusion.pipeline import DEFAULT_STEPS, RelightPipeline
-from relight.interface import SHIPPED_WEIGHTS, Relighter
+from relight.interface import Relighter
+from weights import weights_dir
 
 __all__ = ["DiffusionRelighter", "load_diffusion_relighter"]
 
@@ -21,8 +23,14 @@ class DiffusionRelighter(Relighter):
     name = "diffusion"
     stochastic = True
 
-    def __init__(self, model: RelightDiffusion, steps: int = DEFAULT_STEPS, num_samples: int = 1):
-        self.pipeline = RelightPipeline(model)
+    def __init__(
+        self,
+        model: RelightDiffusion,
+        steps: int = DEFAULT_STEPS,
+        num_samples: int = 1,
+        scheduler: DDIMScheduler | None = None,
+    ):
+        self.pipeline = RelightPipeline(model, scheduler)
         self.steps = steps
         self.num_samples = num_samples
 
@@ -43,9 +51,14 @@ class DiffusionRelighter(Relighter):
 
 
 def load_diffusion_relighter(checkpoint: str | os.PathLike | None = None) -> DiffusionRelighter:
-    """From a ``save_pretrained`` folder, a training checkpoint (``.../latest``), or
-    (None) the shipped tiny model in ``relight/weights/diffusion``."""
-    folder = Path(checkpoint) if checkpoint is not None else SHIPPED_WEIGHTS / "diffusion"
-    if not (folder / CONFIG_NAME).is_file() and (folder / "model" / CONFIG_NAME).is_file():
+    """From a ``save_pretrained`` folder, a training checkpoint (``.../latest``, the model in
+    ``model/``), or (None) the shipped tiny model, ``weights_dir("diffusion")``; the sampler
+    from the folder's ``scheduler_config.json`` when it has one (``RelightPipeline.from_pretrained``)."""
+    folder = Path(checkpoint) if checkpoint is not None else weights_dir("diffusion")
+    if not (folder / CONFIG_NAME).is_file():
+        # A training checkpoint folder holds the model under model/.
+        if not (folder / "model" / CONFIG_NAME).is_file():
+            raise FileNotFoundError(f"{folder}: not a relighting checkpoint (no {CONFIG_NAME} there or in model/)")
         folder = folder / "model"
-    return DiffusionRelighter(RelightDiffusion.from_pretrained(folder))
+    pipeline = RelightPipeline.from_pretrained(folder)
+    return DiffusionRelighter(pipeline.model, scheduler=pipeline.scheduler)

@@ -23,7 +23,7 @@ from torch.utils.data import DataLoader
 from tqdm.auto import tqdm
 
 from materials.dataset import TRAIN_SEEDS, GroupConfig, RenderedGroups
-from relight.diffusion.config import RelightConfig
+from relight.diffusion.config import TINY_TRAINING_DEFAULTS
 from relight.diffusion.model import RelightDiffusion, make_train_scheduler
 from relight.diffusion.objective import diffusion_loss
 
@@ -51,7 +51,7 @@ class TrainConfig:
     ema_decay: float = 0.0
     # Share of targets trained at the last timestep from pure noise, as one-step sampling
     # asks the model (relight.diffusion.objective.diffusion_loss); 0 = uniform timesteps.
-    # The shipped weights' stage 2 used 0.5 (relight/weights/diffusion/TRAINING.md).
+    # The shipped weights' stage 2 used 0.5 (weights/diffusion/TRAINING.md).
     terminal_fraction: float = 0.0
     seed: int = 0
     ablation: str = "full"
@@ -147,15 +147,19 @@ def main(cfg: TrainConfig) -> Path:
         model = RelightDiffusion.from_pretrained(ckpt / "model")
     else:
         channels = tuple(int(c) for c in cfg.block_out_channels.split(","))
+        # The tiny preset's switches (photo_concat, residual, data_scale) at the values a new
+        # run uses; this run's flags (channels, base, ...) override the rest of the table.
+        new_run = TINY_TRAINING_DEFAULTS if cfg.preset == "tiny" else {}
         model = RelightDiffusion(
-            RelightConfig(
-                preset=cfg.preset,
-                sd21_path=cfg.sd21_path or None,
-                resolution=cfg.resolution,
-                ablation=cfg.ablation,
-                block_out_channels=channels,
-                base=cfg.base,
-            )
+            **{
+                **new_run,
+                "preset": cfg.preset,
+                "sd21_path": cfg.sd21_path or None,
+                "resolution": cfg.resolution,
+                "ablation": cfg.ablation,
+                "block_out_channels": channels,
+                "base": cfg.base,
+            }
         )
     optimizer = torch.optim.AdamW(_trainable(model), lr=cfg.lr)
     step, history, state = 0, [], {}

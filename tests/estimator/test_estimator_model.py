@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from estimator import EstimatorConfig, SVBRDFEstimator
-from estimator.config import TINY_TEST_CONFIG
+from estimator.config import TINY_TEST_CONFIG, TRAINING_DEFAULTS
 from materials.types import Material
 
 SIZE = 32  # conftest's image side
@@ -78,11 +78,34 @@ def test_save_pretrained_round_trip(tiny_model, tmp_path, random_views):
 
 def test_default_size_budget():
     """The shipped architecture stays small (brief: < ~2.5 M params, safetensors < 10 MB)."""
-    model = SVBRDFEstimator()
+    model = SVBRDFEstimator(**TRAINING_DEFAULTS)
     params = sum(p.numel() for p in model.parameters())
     assert params < 2_500_000
     assert params * 4 < 10_000_000
-    assert model.arch == EstimatorConfig()  # model defaults and dataclass defaults agree
+    # EstimatorConfig is generated from the signature: the model's defaults plus TRAINING_DEFAULTS
+    assert model.arch == EstimatorConfig()
+    # ... and a saved config without a field reads as the model's default (old checkpoints)
+    assert SVBRDFEstimator().arch == EstimatorConfig.from_saved({}) != EstimatorConfig()
+    assert EstimatorConfig.from_saved({}).shading_channels == 0
+
+
+@pytest.mark.parametrize("change", ["drop", "add"])
+def test_from_pretrained_refuses_a_partial_load(tiny_model, tmp_path, change):
+    # diffusers alone would only warn (unexpected) or leave the weight on the meta device (missing).
+    from safetensors.torch import load_file, save_file
+
+    tiny_model.save_pretrained(tmp_path)
+    (file,) = tmp_path.glob("*.safetensors")
+    _, info = SVBRDFEstimator.from_pretrained(tmp_path, output_loading_info=True)
+    assert not info["missing_keys"] and not info["unexpected_keys"] and not info["mismatched_keys"]
+    state = load_file(str(file))
+    if change == "drop":
+        del state["heads.normal.out.bias"]
+    else:
+        state["heads.extra.bias"] = torch.zeros(3)
+    save_file(state, str(file), metadata={"format": "pt"})
+    with pytest.raises(ValueError, match="missing" if change == "drop" else "unexpected"):
+        SVBRDFEstimator.from_pretrained(tmp_path)
 
 
 def test_latent_offset_changes_output(tiny_model, random_views):
@@ -167,6 +190,6 @@ def test_no_shading_branch_and_old_checkpoints(tmp_path, random_views):
             loaded(images, light, camera).stacked(), plain(images, light, camera).stacked(), atol=0, rtol=0
         )
     with pytest.raises(ValueError, match="two levels"):
-        EstimatorConfig(channel_mults=(1,), shading_channels=4)
+        SVBRDFEstimator(channel_mults=(1,), shading_channels=4)
     with pytest.raises(ValueError, match="shading_channels"):
-        EstimatorConfig(shading_channels=-1)
+        SVBRDFEstimator(shading_channels=-1)

@@ -86,6 +86,25 @@ def test_save_load_round_trip(tmp_path, group_batch):
         )
 
 
+@pytest.mark.parametrize("change", ["drop", "add"])
+def test_from_pretrained_refuses_a_partial_load(tmp_path, change):
+    # diffusers alone would only warn (unexpected) or leave the weight on the meta device (missing).
+    from safetensors.torch import load_file, save_file
+
+    BieronRelighter(**TINY).save_pretrained(tmp_path)
+    (file,) = tmp_path.glob("*.safetensors")
+    _, info = BieronRelighter.from_pretrained(tmp_path, output_loading_info=True)
+    assert not info["missing_keys"] and not info["unexpected_keys"] and not info["mismatched_keys"]
+    state = load_file(str(file))
+    if change == "drop":
+        del state["conv_out.bias"]
+    else:
+        state["conv_extra.bias"] = torch.zeros(3)
+    save_file(state, str(file), metadata={"format": "pt"})
+    with pytest.raises(ValueError, match="missing" if change == "drop" else "unexpected"):
+        BieronRelighter.from_pretrained(tmp_path)
+
+
 @pytest.mark.parametrize("residual", ["none", "lambertian"])
 def test_overfits_a_fixed_batch(group_batch, residual):
     torch.manual_seed(0)

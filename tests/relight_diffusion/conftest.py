@@ -1,9 +1,10 @@
 import pytest
 import torch
 
-from relight.diffusion import RelightConfig, RelightDiffusion
+from relight.diffusion import RelightDiffusion
 
-#: A real but tiny architecture: every code path of the tiny preset, at 16x16.
+#: A real but tiny architecture: every code path of the tiny preset, at 16x16, with the
+#: switches a new training run turns on (``TINY_TRAINING_DEFAULTS``; base: the photo).
 TINY = dict(
     resolution=16,
     block_out_channels=(8, 16),
@@ -11,13 +12,22 @@ TINY = dict(
     attention_head_dim=4,
     num_light_tokens=2,
     condition_widths=(4, 4, 4, 4, 8, 8),
+    photo_concat=True,
+    residual=True,
+    data_scale=3.0,
 )
+
+
+@pytest.fixture
+def tiny_args():
+    """The constructor arguments of ``tiny_model``."""
+    return dict(TINY)
 
 
 @pytest.fixture
 def tiny_model():
     torch.manual_seed(0)
-    return RelightDiffusion(RelightConfig(**TINY))
+    return RelightDiffusion(**TINY)
 
 
 @pytest.fixture

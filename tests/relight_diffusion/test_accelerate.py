@@ -43,4 +43,4 @@ def test_two_process_accelerate_smoke(tmp_path):
     assert result.returncode == 0, result.stderr[-3000:]
     history = json.loads((tmp_path / "latest" / "history.json").read_text())
     assert [h[0] for h in history] == [1, 2]
-    assert (tmp_path / "latest" / "model" / "relight.safetensors").is_file()
+    assert (tmp_path / "latest" / "model" / "diffusion_pytorch_model.safetensors").is_file()

@@ -62,7 +62,33 @@ def test_save_load_round_trip(tiny_model, tmp_path):
         a = tiny_model.denoise(x, t, *tiny_model.encode_condition(photo, photo, light, camera))
         b = loaded.denoise(x, t, *loaded.encode_condition(photo, photo, light, camera))
     assert torch.equal(a, b)
-    with pytest.raises(FileNotFoundError, match="not a relighting checkpoint"):
+    assert {p.name for p in (tmp_path / "ckpt").iterdir()} == {"config.json", "diffusion_pytorch_model.safetensors"}
+    _, info = RelightDiffusion.from_pretrained(tmp_path / "ckpt", output_loading_info=True)
+    assert not info["missing_keys"] and not info["unexpected_keys"] and not info["mismatched_keys"]
+    with pytest.raises(OSError, match="config.json"):
+        RelightDiffusion.from_pretrained(tmp_path)
+
+
+@pytest.mark.parametrize("change", ["drop", "add", "reshape"])
+def test_from_pretrained_refuses_a_partial_load(tiny_model, tmp_path, change):
+    # diffusers alone only warns on an unexpected key and leaves a missing one on the meta
+    # device; the model's from_pretrained must refuse both, and a shape mismatch.
+    from safetensors.torch import load_file, save_file
+
+    from relight.diffusion.model import WEIGHTS_NAME
+
+    tiny_model.save_pretrained(tmp_path)
+    state = load_file(str(tmp_path / WEIGHTS_NAME))
+    key = next(k for k in state if ".processor.to_k_ip" in k)
+    if change == "drop":
+        del state[key]
+    elif change == "add":
+        state["unet.extra.weight"] = torch.zeros(2)
+    else:
+        state[key] = torch.zeros(3, 5)
+    save_file(state, str(tmp_path / WEIGHTS_NAME), metadata={"format": "pt"})
+    kind = {"drop": "missing", "add": "unexpected", "reshape": "size mismatch|mismatched"}[change]
+    with pytest.raises((ValueError, RuntimeError), match=kind):
         RelightDiffusion.from_pretrained(tmp_path)
 
 
@@ -121,6 +147,8 @@ def test_registered_behind_the_common_interface(tiny_model, tmp_path):
     camera_pos = torch.tensor([[0.0, 0.0, 4.0]]).repeat(2, 1)
     out = relighter.relight(photo, light_pos, camera_pos, generator=torch.Generator().manual_seed(0))
     assert out.shape == (2, 3, 3, 16, 16) and getattr(relighter, "stochastic", False)
+    with pytest.raises(FileNotFoundError, match="not a relighting checkpoint"):
+        get_relighter("diffusion", tmp_path)  # the command line reports FileNotFoundError
     # float16 storage: loaded weights equal the originals rounded to half precision
     loaded = relighter.pipeline.model
     for (name, a), b in zip(tiny_model.state_dict().items(), loaded.state_dict().values()):
@@ -141,25 +169,29 @@ def test_residual_space_round_trips_and_photo_enters_the_unet(tiny_model):
     assert not torch.allclose(a, b)  # the photo reaches the output at initialisation
 
 
-def test_checkpoints_without_the_switches_load_as_plain():
-    from relight.diffusion import RelightConfig
+def test_checkpoints_without_the_switches_load_as_plain(tiny_args, tmp_path):
+    # A config.json saved before photo_concat, residual, data_scale and base existed has
+    # none of them: the constructor's defaults are what such a checkpoint was.
+    import json
 
-    legacy = RelightConfig(photo_concat=False, residual=False).to_dict()
-    del legacy["photo_concat"], legacy["residual"], legacy["data_scale"]
-    cfg = RelightConfig.from_dict(legacy)
-    assert not cfg.photo_concat and not cfg.residual and cfg.data_scale == 1.0
-    model = RelightDiffusion(cfg)
-    assert model.unet.conv_in.in_channels == 3
+    for name in ("photo_concat", "residual", "data_scale"):
+        del tiny_args[name]
+    RelightDiffusion(**tiny_args).save_pretrained(tmp_path)
+    config = json.loads((tmp_path / "config.json").read_text())
+    for name in ("photo_concat", "residual", "data_scale", "base"):
+        del config[name]
+    (tmp_path / "config.json").write_text(json.dumps(config))
+    model = RelightDiffusion.from_pretrained(tmp_path)
+    assert not model.config.photo_concat and not model.config.residual and model.config.data_scale == 1.0
+    assert model.config.base == "photo" and model.unet.conv_in.in_channels == 3
     target = torch.rand(1, 3, 8, 8) * 0.8
     assert torch.allclose(model.to_linear(model.to_model_space(target, None), None), target, atol=1e-5)
 
 
-def test_lambertian_base_is_the_lambertian_baseline_and_round_trips(tiny_model):
-    import dataclasses
-
+def test_lambertian_base_is_the_lambertian_baseline_and_round_trips(tiny_args):
     from relight.interface import get_relighter
 
-    model = RelightDiffusion(dataclasses.replace(tiny_model.config, base="lambertian"))
+    model = RelightDiffusion(**tiny_args, base="lambertian")
     photo, light, camera, x, t = _inputs(model)
     expected = get_relighter("lambertian").relight(photo, light[:, None], camera)[:, 0]
     base_x = model.residual_base(photo, light, camera)
@@ -173,16 +205,37 @@ def test_lambertian_base_is_the_lambertian_baseline_and_round_trips(tiny_model):
     assert not torch.allclose(base_x, RelightDiffusion.tonemapped(photo))
 
 
-def test_lambertian_base_is_checked_and_legacy_configs_use_the_photo():
-    from relight.diffusion import RelightConfig
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        (dict(base="phong"), "base: unknown base 'phong'"),
+        (dict(preset="sd21", sd21_path="/nowhere", base="lambertian"), "base 'lambertian' needs the tiny preset"),
+        (dict(preset="sdxl"), "preset: unknown preset 'sdxl'"),
+        (dict(ablation="wo_everything"), "ablation: unknown ablation"),
+        (dict(resolution=20), "resolution must be a multiple of 8"),
+        (dict(data_scale=0.0), "data_scale must be positive"),
+    ],
+)
+def test_bad_arguments_are_named(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        RelightDiffusion(**kwargs)
 
-    with pytest.raises(ValueError, match="unknown base"):
-        RelightConfig(base="phong")
-    with pytest.raises(ValueError, match="tiny"):
-        RelightConfig(preset="sd21", sd21_path="/nowhere", base="lambertian")
-    legacy = RelightConfig().to_dict()
-    del legacy["base"]
-    assert RelightConfig.from_dict(legacy).base == "photo"
+
+def test_pipeline_saves_and_loads_its_scheduler(tiny_model, tmp_path):
+    from diffusers import DDIMScheduler
+
+    from relight.diffusion.pipeline import SCHEDULER_CONFIG_NAME
+
+    tiny_model.save_pretrained(tmp_path / "model_only")
+    default = RelightPipeline.from_pretrained(tmp_path / "model_only")
+    assert default.scheduler.config == make_sample_scheduler().config  # no file: the default
+    scheduler = DDIMScheduler.from_config(make_sample_scheduler().config, timestep_spacing="leading")
+    RelightPipeline(tiny_model, scheduler).save_pretrained(tmp_path / "pipe")
+    assert (tmp_path / "pipe" / SCHEDULER_CONFIG_NAME).is_file()
+    loaded = RelightPipeline.from_pretrained(tmp_path / "pipe")
+    assert loaded.scheduler.config.timestep_spacing == "leading"
+    public = lambda config: {k: v for k, v in config.items() if not k.startswith("_")}  # noqa: E731
+    assert public(loaded.scheduler.config) == public(scheduler.config)
 
 
 def test_objective_and_condition_use_the_same_residual_base(tiny_model, group_batch, monkeypatch):

@@ -8,7 +8,7 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from relight.diffusion import RelightConfig, RelightDiffusion, RelightPipeline, make_train_scheduler
+from relight.diffusion import RelightDiffusion, RelightPipeline, make_train_scheduler
 from relight.diffusion.model import WEIGHTS_NAME
 from relight.diffusion.objective import diffusion_loss
 from relight.modules.ip_attention import decoupled_processors
@@ -88,14 +88,13 @@ def sd21_folder(tmp_path_factory):
 @pytest.fixture
 def sd21_model(sd21_folder):
     torch.manual_seed(0)
-    cfg = RelightConfig(
+    return RelightDiffusion(
         preset="sd21",
         sd21_path=str(sd21_folder),
         resolution=64,
         num_light_tokens=2,
         condition_widths=(4, 4, 4, 4, 8, 8),
     )
-    return RelightDiffusion(cfg)
 
 
 def _inputs(n=2, res=64, seed=0):
@@ -154,7 +153,12 @@ def test_save_load_stores_only_trained_weights(sd21_model, tmp_path):
     assert not any(k.startswith("vae.") for k in keys)
     assert not any(k.startswith("unet.") and ".processor." not in k for k in keys)
     assert any(k.startswith("unet.") and ".processor." in k for k in keys)
-    loaded = RelightDiffusion.from_pretrained(tmp_path / "ckpt")
+    loaded, info = RelightDiffusion.from_pretrained(tmp_path / "ckpt", output_loading_info=True)
+    # the frozen weights are the ones missing from the file, and only they; none unexpected
+    assert set(info["missing_keys"]) == {k for k in m.state_dict() if k not in keys}
+    assert not info["unexpected_keys"] and not info["mismatched_keys"]
+    for name, value in m.state_dict().items():  # frozen ones re-read from sd21_path
+        assert torch.equal(loaded.state_dict()[name], value), name
     photo, light, camera, x, t = _inputs()
     with torch.no_grad():
         assert torch.equal(
@@ -179,11 +183,24 @@ def test_pipeline_decodes_to_images(sd21_model):
 
 def test_bad_sd21_settings(tmp_path, sd21_folder):
     with pytest.raises(ValueError, match="needs sd21_path"):
-        RelightConfig(preset="sd21")
+        RelightDiffusion(preset="sd21")
     with pytest.raises(ValueError, match="photo_concat needs a UNet trained from scratch"):
-        RelightConfig(preset="sd21", sd21_path=str(sd21_folder), photo_concat=True)
+        RelightDiffusion(preset="sd21", sd21_path=str(sd21_folder), photo_concat=True)
     with pytest.raises(FileNotFoundError, match="no such folder"):
-        RelightDiffusion(RelightConfig(preset="sd21", sd21_path=str(tmp_path / "nowhere")))
+        RelightDiffusion(preset="sd21", sd21_path=str(tmp_path / "nowhere"))
     (tmp_path / "partial" / "unet").mkdir(parents=True)
     with pytest.raises(FileNotFoundError, match=r"missing subfolder\(s\) \['vae', 'text_encoder', 'tokenizer'\]"):
-        RelightDiffusion(RelightConfig(preset="sd21", sd21_path=str(tmp_path / "partial")))
+        RelightDiffusion(preset="sd21", sd21_path=str(tmp_path / "partial"))
+
+
+def test_a_missing_trained_weight_is_refused(sd21_model, tmp_path):
+    # Only the frozen UNet/VAE weights may be absent from an sd21 checkpoint.
+    from safetensors.torch import save_file
+
+    sd21_model.save_pretrained(tmp_path)
+    state = load_file(str(tmp_path / WEIGHTS_NAME))
+    key = next(k for k in state if k.startswith("unet.") and ".processor." in k)
+    del state[key]
+    save_file(state, str(tmp_path / WEIGHTS_NAME), metadata={"format": "pt"})
+    with pytest.raises(ValueError, match=f"1 missing keys, e.g. \\['{key}'\\]"):
+        RelightDiffusion.from_pretrained(tmp_path)

@@ -1,1 +1,0 @@
-"""Shipped estimator checkpoint (package data; see TRAINING.md)."""

@@ -1,1 +1,0 @@
-"""Shipped ``BieronRelighter`` checkpoint; see ``TRAINING.md`` here for how it was made."""

@@ -1,1 +1,0 @@
-"""Shipped tiny relighting diffusion checkpoint (package data; see TRAINING.md)."""
