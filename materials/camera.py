@@ -18,9 +18,10 @@ f on a sensor of diagonal d is "equivalent" to f * 43.27 / d on 35 mm film, whos
 is 36 x 24 mm with a 43.27 mm diagonal (CIPA DC-008, the standard EXIF 2.3 refers to).
 Using the diagonal keeps it right for the 4:3 sensors of phones; the 36 mm width would
 be right only for 3:2 frames and overestimates a 4:3 photo's long-side field of view by
-about 4%. The long side's field of view then follows from the photo's aspect ratio.
-Caveat: EXIF describes the full frame the camera took; a photo cropped afterwards has a
-narrower field of view (``crop_fov``), and a resized one the same.
+3 to 4% (26 mm: 69.4 instead of 67.3 degrees). The long side's field of view then
+follows from the photo's aspect ratio. Caveat: EXIF describes the full frame the camera
+took; a photo cropped afterwards has a narrower field of view (``crop_fov``), while a
+resized one keeps it, and the EXIF size alone cannot tell the two apart.
 """
 
 from __future__ import annotations

@@ -9,8 +9,9 @@ Decoding (the project's photo convention, README "Photos"):
 - 8- and 16-bit PNG, JPEG: the stored values are display values; they are decoded with
   the inverse of the project's tone map, ``clamp(v, 0, 1) ** 2.2``
   (``kernels.tonemap.inverse_tonemap``). A phone's JPEG is sRGB-ish, and 2.2 is the
-  project's convention for it, not an exact sRGB decode (the two differ by < 0.004 in
-  linear value above 0.1, more in deep shadows). 16-bit files keep their 65,536 levels.
+  project's convention for it, not an exact sRGB decode (the two differ by at most 0.009
+  in linear value, and by a large factor in relative terms in the deep shadows, where
+  sRGB is linear). 16-bit files keep their 65,536 levels.
 - EXR: linear radiance as stored (R, G, B or Y). Negative values (possible after
   processing) are clamped to 0 with a note.
 - Grey files are copied to three channels; alpha (RGBA, grey+alpha, palette
