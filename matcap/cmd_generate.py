@@ -101,7 +101,7 @@ def run(args) -> int:
     # progress; the generator carries on from light to light.
     relit = torch.cat(
         [
-            relighter.relight(photo[None], camera[None], lights[None, k : k + 1], generator=gen)[0]
+            relighter.relight(photo=photo[None], camera=camera[None], lights=lights[None, k : k + 1], generator=gen)[0]
             for k in tqdm(range(len(lights)), desc=f"relight ({args.model})", unit="light", leave=False)
         ]
     )
