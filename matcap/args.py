@@ -3,12 +3,41 @@
 from __future__ import annotations
 
 import math
+import re
+from collections.abc import Sequence
 
 import torch
 
 from matcap.errors import UsageError
 
-__all__ = ["parse_position", "positions_or_default", "check_at_least_one", "set_sampling"]
+__all__ = ["parse_position", "positions_or_default", "check_at_least_one", "set_sampling", "join_negative_values"]
+
+_NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+# A comma-separated list of numbers whose first one is negative: "-1,0,5", "-.5, 2, 4e0".
+_NEGATIVE_LIST = re.compile(rf"^-(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?(?:\s*,\s*{_NUMBER})+$")
+
+
+def join_negative_values(argv: Sequence[str]) -> list[str]:
+    """Let a value that starts with a minus follow its option: ``--light -1,0,5``.
+
+    argparse takes any token starting with ``-`` that is not a plain negative number for
+    an option, so ``--light -1,0,5`` fails with "expected one argument" and only
+    ``--light=-1,0,5`` works. This joins such a value to the long option before it into
+    the ``=`` form, which argparse reads the same way. Only comma-separated number
+    lists are joined (plain negative numbers already work), and nothing after ``--``.
+
+    Example:
+        >>> join_negative_values(["render", "--light", "-1,0,5", "--out", "o"])
+        ['render', '--light=-1,0,5', '--out', 'o']
+    """
+    out: list[str] = []
+    for token in argv:
+        prev = out[-1] if out else ""
+        if "--" not in out and _NEGATIVE_LIST.match(token) and prev.startswith("--") and "=" not in prev:
+            out[-1] = f"{prev}={token}"
+        else:
+            out.append(token)
+    return out
 
 
 def parse_position(text: str, what: str = "position") -> tuple[float, float, float]:

@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from matcap import cmd_convert, cmd_estimate, cmd_eval, cmd_generate, cmd_render, cmd_synth, cmd_train
+from matcap.args import join_negative_values
 from matcap.errors import UsageError
 
 __all__ = ["main", "build_parser"]
@@ -25,7 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args = build_parser().parse_args(join_negative_values(sys.argv[1:] if argv is None else argv))
     from materials.io.errors import FormatError
     from materials.types import MapError
 

@@ -5,7 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from matcap.outputs import check_output_folder
 from materials.io import load_capture, load_material, save_capture, save_material
+from materials.io.ours import CAPTURE_JSON, MATERIAL_JSON
 
 __all__ = ["add_parser", "run"]
 
@@ -31,14 +33,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args) -> int:
     if not args.src.exists():
         raise FileNotFoundError(f"{args.src}: does not exist")
+    if args.size and args.fmt != "matsynth":
+        raise ValueError("--size applies to --from matsynth only")
+    marker = CAPTURE_JSON if args.fmt in _CAPTURE_FORMATS else MATERIAL_JSON
+    check_output_folder(args.out, overwrite=args.overwrite, marker=marker)
     if args.fmt in _CAPTURE_FORMATS:
         capture = load_capture(args.src, fmt=args.fmt)
         save_capture(args.out, capture, overwrite=args.overwrite)
         print(f"wrote a capture of {capture.num_views} images to {args.out}")
         return 0
     kwargs = {"size": args.size} if args.fmt == "matsynth" and args.size else {}
-    if args.size and args.fmt != "matsynth":
-        raise ValueError("--size applies to --from matsynth only")
     material, meta = load_material(args.src, fmt=args.fmt, **kwargs)
     provenance = {"converted_from": args.fmt, "source": str(args.src)}
     save_material(args.out, material, provenance=provenance, overwrite=args.overwrite)

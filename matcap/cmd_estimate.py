@@ -10,7 +10,7 @@ import torch
 
 import kernels
 from matcap.estimate import estimate_material, load_estimator
-from matcap.outputs import contact_sheet, write_image_pair
+from matcap.outputs import check_output_folder, contact_sheet, write_image_pair
 from materials.io import load_capture, save_material, write_png
 from materials.io.atomic import atomic_folder
 from materials.io.encoding import chw_to_hwc
@@ -42,6 +42,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args) -> int:
     if args.refine < 0:
         raise ValueError(f"--refine must be >= 0, got {args.refine}")
+    check_output_folder(args.out, overwrite=args.overwrite, marker=ESTIMATE_MARKER)
     capture = load_capture(args.capture)
     model = load_estimator(args.model)
     material, history = estimate_material(capture, model, refine_steps=args.refine)

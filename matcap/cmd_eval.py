@@ -15,8 +15,9 @@ from pathlib import Path
 
 from matcap.args import check_at_least_one, set_sampling
 from matcap.errors import UsageError
+from matcap.outputs import check_output_folder
 
-__all__ = ["add_parser", "run", "EVAL_MARKER", "DEPRECATED_TARGETS"]
+__all__ = ["add_parser", "run", "EVAL_MARKER", "ESTIMATOR_EVAL_MARKER", "DEPRECATED_TARGETS"]
 
 #: File that marks a folder written by ``relight eval relighting`` (safe to --overwrite).
 EVAL_MARKER = "relight_eval.json"
@@ -33,6 +34,10 @@ def _note_deprecated(args) -> None:
             "(the old name will be removed in the next release)",
             file=sys.stderr,
         )
+
+
+#: File that marks a folder written by ``relight eval estimator`` (safe to --overwrite).
+ESTIMATOR_EVAL_MARKER = "estimator_eval.json"
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -89,20 +94,23 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "with and without refinement: map MSE and re-rendered PSNR/SSIM under 16 held-out lights, "
         "plus diffuse error inside the highlight on the most specular third.",
     )
-    e.add_argument("--out", required=True, type=Path, help="output folder")
+    e.add_argument("--out", required=True, type=Path, help="output folder (created)")
     e.add_argument("--model", type=Path, default=None, help="estimator folder (default: the shipped one)")
     e.add_argument("--num", type=int, default=16, help="held-out materials (default %(default)s)")
     e.add_argument("--size", type=int, default=64, help="image side (default %(default)s)")
     e.add_argument("--refine-steps", type=int, default=100, help="refinement steps (default %(default)s)")
     e.add_argument("--num-threads", type=int, default=None, help="torch threads")
+    e.add_argument("--overwrite", action="store_true", help="replace an output folder written by this command")
     e.set_defaults(run=run_estimator)
 
 
 def run_estimator(args) -> int:
     _note_deprecated(args)
     from estimator.evaluate import cli
+    from materials.io.atomic import atomic_folder
     from weights import weights_dir
 
+    check_output_folder(args.out, overwrite=args.overwrite, marker=ESTIMATOR_EVAL_MARKER)
     flags = [
         "--model",
         str(args.model or weights_dir("estimator")),
@@ -112,12 +120,13 @@ def run_estimator(args) -> int:
         str(args.size),
         "--refine-steps",
         str(args.refine_steps),
-        "--out",
-        str(args.out),
     ]
     if args.num_threads:
         flags += ["--num-threads", str(args.num_threads)]
-    cli(flags)
+    # The evaluation writes into the folder it is given: give it a temporary one, so an
+    # existing folder is never written into file by file (and a failed run leaves nothing).
+    with atomic_folder(args.out, overwrite=args.overwrite, marker=ESTIMATOR_EVAL_MARKER) as tmp:
+        cli([*flags, "--out", str(tmp)])
     return 0
 
 
@@ -178,6 +187,7 @@ def run(args) -> int:
     _note_deprecated(args)
     register()  # the estimator's 1-input maps re-rendered: a Table-1 baseline
 
+    check_output_folder(args.out, overwrite=args.overwrite, marker=EVAL_MARKER)
     steps = _steps_list(args.steps)  # before any model is loaded
     cfg = EvalConfig(count=args.count, size=args.size, chunk=args.chunk, samples=args.samples, seed=args.seed)
     checkpoints = _checkpoints(args.checkpoint)

@@ -7,10 +7,11 @@ import json
 from pathlib import Path
 
 import torch
+from tqdm.auto import tqdm
 
 from matcap.args import parse_position, positions_or_default, set_sampling
 from matcap.errors import UsageError
-from matcap.outputs import write_image_pair
+from matcap.outputs import check_output_folder, write_image_pair
 from materials.lights import EVAL_CAMERA, EVAL_LIGHTS
 
 __all__ = ["add_parser", "run", "read_photo", "GENERATE_MARKER"]
@@ -34,8 +35,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--light",
         action="append",
         metavar="X,Y,Z",
-        help="target light position (repeat; write --light=-1,0,5 when x is negative); "
-        "default: the 7 evaluation lights",
+        help="target light position (repeat); default: the 7 evaluation lights",
     )
     p.add_argument(
         "--camera",
@@ -78,18 +78,35 @@ def read_photo(path: Path) -> torch.Tensor:
 def run(args) -> int:
     from matcap.estimator_relighter import register
     from materials.io.atomic import atomic_folder
-    from relight.interface import get_relighter
+    from relight.interface import get_relighter, relighter_names
 
     register()
+    check_output_folder(args.out, overwrite=args.overwrite, marker=GENERATE_MARKER)
     camera_pos = torch.tensor(parse_position(args.camera, "--camera"))
     light_pos = positions_or_default(args.light, torch.tensor(EVAL_LIGHTS, dtype=torch.float32), "--light")
     photo = read_photo(args.photo)
     if photo.shape[0] != 3:
         raise UsageError(f"photo {str(args.photo)!r} has {photo.shape[0]} channel(s); expected 3 (RGB)")
-    relighter = get_relighter(args.model, args.checkpoint)
+    try:
+        relighter = get_relighter(args.model, args.checkpoint)
+    except ValueError:
+        if args.model in relighter_names():
+            raise  # a known relighter that failed to load: its own message
+        # Plugins register when imported: import them all, so the list is complete.
+        known = relighter_names(discover=True)
+        raise UsageError(f"unknown relighter {args.model!r}; known: {', '.join(known)}") from None
     set_sampling(relighter, args.model, args.steps, args.samples)
     gen = torch.Generator().manual_seed(args.seed)
-    relit = relighter.relight(photo[None], light_pos[None], camera_pos[None], generator=gen)[0]
+    # One light per call, so a slow model (diffusion sampling, a large photo) shows
+    # progress; the generator carries on from light to light.
+    relit = torch.cat(
+        [
+            relighter.relight(
+                photo=photo[None], light_pos=light_pos[None, k : k + 1], camera_pos=camera_pos[None], generator=gen
+            )[0]
+            for k in tqdm(range(len(light_pos)), desc=f"relight ({args.model})", unit="light", leave=False)
+        ]
+    )
     with atomic_folder(args.out, overwrite=args.overwrite, marker=GENERATE_MARKER) as tmp:
         files = []
         for k, image in enumerate(relit):

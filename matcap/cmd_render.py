@@ -10,7 +10,7 @@ import torch
 
 import kernels
 from matcap.args import parse_position, positions_or_default
-from matcap.outputs import contact_sheet, write_image_pair
+from matcap.outputs import check_output_folder, contact_sheet, write_image_pair
 from materials.io import load_material
 from materials.io.atomic import atomic_folder
 from materials.lights import EVAL_CAMERA, eval_lights
@@ -62,6 +62,7 @@ def _material(args) -> tuple[Material, dict]:
 
 
 def run(args) -> int:
+    check_output_folder(args.out, overwrite=args.overwrite, marker=RENDER_MARKER)
     material, provenance = _material(args)
     camera_pos = torch.tensor(parse_position(args.camera, "--camera"))
     light_pos = positions_or_default(args.light, eval_lights()[0], "--light")

@@ -9,6 +9,7 @@ import torch
 from tqdm import tqdm
 
 import kernels
+from matcap.outputs import check_output_folder
 from materials.io import save_material
 from materials.io.atomic import atomic_folder
 from materials.lights import EVAL_CAMERA
@@ -41,6 +42,7 @@ def run(args) -> int:
         raise ValueError(f"--count must be at least 1, got {args.count}")
     if args.seed < 0:
         raise ValueError(f"--seed must be non-negative, got {args.seed}")
+    check_output_folder(args.out, overwrite=args.overwrite, marker=SYNTH_MARKER)
     flash = torch.tensor([EVAL_CAMERA])
     with atomic_folder(args.out, overwrite=args.overwrite, marker=SYNTH_MARKER) as tmp:
         names = []

@@ -1,16 +1,62 @@
-"""Writing rendered images for people and renderers: tone-mapped PNG + linear EXR."""
+"""Output folders and images: checking ``--out`` before the work, tone-mapped PNG +
+linear EXR pairs, contact sheets."""
 
 from __future__ import annotations
 
+import os
+import tempfile
 from pathlib import Path
 
 import torch
 
 from kernels.tonemap import tonemap
+from matcap.errors import UsageError
 from materials.io import write_exr, write_png
+from materials.io.atomic import clean_stale
 from materials.io.encoding import chw_to_hwc
 
-__all__ = ["write_image_pair", "contact_sheet"]
+__all__ = ["check_output_folder", "write_image_pair", "contact_sheet"]
+
+
+def check_output_folder(folder: str | os.PathLike, *, overwrite: bool, marker: str) -> Path:
+    """Check that ``--out`` can be written, before any compute (a bad ``--out`` costs a
+    second, not the run). Also removes what a killed earlier run left next to it
+    (``materials.io.atomic.clean_stale``).
+
+    Args:
+        folder: the ``--out`` folder.
+        overwrite: ``--overwrite`` was given.
+        marker: the file that marks a folder this command wrote (only such a folder, or
+            an empty one, is replaced).
+
+    Raises:
+        UsageError: one line naming ``--out`` and, where it helps, ``--overwrite``.
+    """
+    folder = Path(folder)
+    clean_stale(folder)
+    if folder.exists() or folder.is_symlink():
+        if not folder.is_dir():
+            raise UsageError(f"--out {folder}: exists and is not a folder; choose another --out")
+        if not overwrite:
+            raise UsageError(f"--out {folder}: already exists; pass --overwrite to replace it, or choose another --out")
+        if any(folder.iterdir()) and not (folder / marker).is_file():
+            raise UsageError(
+                f"--out {folder}: already exists and was not written by this command (no {marker}); "
+                "not replacing it, even with --overwrite: choose another --out"
+            )
+    ancestor = folder.absolute().parent
+    while not ancestor.exists():
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise UsageError(f"--out {folder}: {ancestor} is a file, not a folder")
+    # Permission bits do not say it all (root, read-only mounts): try what the writer
+    # will do, make a hidden folder there.
+    try:
+        probe = tempfile.mkdtemp(prefix=f".{folder.name}.probe-", dir=ancestor)
+    except OSError as err:
+        raise UsageError(f"--out {folder}: cannot write in {ancestor} ({err.strerror or err})") from None
+    os.rmdir(probe)
+    return folder
 
 
 def write_image_pair(folder: Path, stem: str, image: torch.Tensor) -> list[Path]:

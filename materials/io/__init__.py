@@ -14,14 +14,18 @@ name              on disk                                      functions
 ``inria``         PNG of five panels (Deschaintre 2018)          ``write_inria`` / ``read_inria``
 ``matsynth``      folder of basecolor/normal/... files           ``read_matsynth``
 ``materialgan``   folder of photos + camera_pos.txt ...          ``read_materialgan``
+photo             one PNG (8/16-bit), JPEG or EXR photo          ``read_photo`` (-> ``Photo``)
+export            EXR + PNG maps, metallic-roughness, ``.glb``   ``export_material``
+glTF              ``.glb`` container (json + struct)            ``write_glb`` / ``read_glb``
 ================  ===========================================  ==================================
 
 ``load_material`` / ``load_capture`` detect the format; ``save_material`` /
 ``save_capture`` write ours (or INRIA). Errors: ``FormatError`` for files,
 ``materials.types.MapError`` for values.
 
-Dependency direction: ``errors`` <- ``atomic`` <- ``exr``, ``png`` <- the format modules
-(``ours``, ``inria``, ``matsynth``, ``materialgan``) <- this package's loaders.
+Dependency direction: ``errors`` <- ``atomic`` <- ``exr``, ``png``, ``gltf`` <- the format
+modules (``ours``, ``inria``, ``matsynth``, ``materialgan``, ``photo``, ``export``) <- this
+package's loaders.
 Colour curves come from ``kernels.tonemap``; normal encoding from ``encoding``.
 
 Example:
@@ -38,7 +42,9 @@ import torch
 
 from materials.io.encoding import decode_normal, encode_normal
 from materials.io.errors import FormatError
+from materials.io.export import export_material, metallic_roughness
 from materials.io.exr import read_exr, write_exr
+from materials.io.gltf import read_glb, write_glb
 from materials.io.inria import read_inria, write_inria
 from materials.io.materialgan import find_numbered_images, read_materialgan
 from materials.io.matsynth import MATSYNTH_MAPS, find_matsynth_maps, read_matsynth
@@ -50,6 +56,7 @@ from materials.io.ours import (
     write_capture,
     write_material,
 )
+from materials.io.photo import Photo, read_photo
 from materials.io.png import read_ldr, read_png, write_png
 from materials.types import Capture, Material
 
@@ -78,6 +85,12 @@ __all__ = [
     "write_inria",
     "read_matsynth",
     "read_materialgan",
+    "Photo",
+    "read_photo",
+    "export_material",
+    "metallic_roughness",
+    "read_glb",
+    "write_glb",
 ]
 
 MATERIAL_FORMATS = ("ours", "matsynth", "inria")
@@ -88,7 +101,9 @@ _MATERIAL_LOOKED_FOR = (
     f"({'/'.join(MATSYNTH_MAPS)} as .png/.jpg/.exr), or an INRIA .png of five panels"
 )
 _CAPTURE_LOOKED_FOR = (
-    f"a folder with {CAPTURE_JSON} (ours), or a MaterialGAN folder (0.png ... N-1.png with camera_pos.txt)"
+    f"our capture folder: tone-mapped 8-bit PNGs 0.png ... N-1.png plus {CAPTURE_JSON} listing each image's "
+    "light_pos and camera_pos (README, 'Capture folder format'); or a MaterialGAN folder "
+    "(0.png ... N-1.png with camera_pos.txt)"
 )
 
 
@@ -120,12 +135,14 @@ def detect_capture_format(path: str | os.PathLike) -> str:
     path = Path(path)
     if not path.exists():
         raise FormatError(path, f"does not exist; looked for {_CAPTURE_LOOKED_FOR}")
-    if path.is_dir():
-        if (path / CAPTURE_JSON).is_file():
-            return "ours"
-        if (path / "camera_pos.txt").is_file() or find_numbered_images(path):
-            return "materialgan"
-    raise FormatError(path, f"unknown capture format; looked for {_CAPTURE_LOOKED_FOR}")
+    if not path.is_dir():
+        raise FormatError(path, f"is a file; a capture is a folder: {_CAPTURE_LOOKED_FOR}")
+    if (path / CAPTURE_JSON).is_file():
+        return "ours"
+    if (path / "camera_pos.txt").is_file():
+        return "materialgan"
+    found = "numbered photos but " if find_numbered_images(path) else ""
+    raise FormatError(path, f"unknown capture format ({found}no {CAPTURE_JSON}); expected {_CAPTURE_LOOKED_FOR}")
 
 
 def load_material(path: str | os.PathLike, fmt: str | None = None, **kwargs) -> tuple[Material, dict]:

@@ -3,13 +3,20 @@
 A writer fills a temporary sibling (same folder, so the final rename never crosses a
 file system) and only a successful write is renamed onto the target with
 ``os.replace`` / ``os.rename``, which POSIX and Windows perform atomically for files.
-An interrupted write leaves at most a hidden ``.<name>.<token>.tmp`` sibling, never a
-half-written target.
+An interrupted write leaves at most a hidden ``.<name>.<pid>-<token>.tmp`` sibling,
+never a half-written target.
+
+A killed process cannot clean up after itself, so the next write to the same target
+does (``clean_stale``): it removes the ``.tmp`` siblings whose process (the ``<pid>`` in
+the name) no longer runs on this machine, and siblings named before the pid was
+recorded. A folder write killed between its two renames leaves the old folder as a
+``.old`` sibling and no target; that folder is put back rather than deleted.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import secrets
 import shutil
 from collections.abc import Iterator
@@ -18,12 +25,63 @@ from pathlib import Path
 
 from materials.io.errors import FormatError
 
-__all__ = ["atomic_file", "atomic_folder"]
+__all__ = ["atomic_file", "atomic_folder", "clean_stale"]
 
 
 def _sibling(path: Path, tag: str) -> Path:
-    # Hidden, unique, and keeps the suffix so libraries that look at it still work.
-    return path.with_name(f".{path.name}.{secrets.token_hex(6)}.{tag}{path.suffix}")
+    # Hidden, unique, owned by this process (the pid), and keeps the suffix so libraries
+    # that look at it still work.
+    return path.with_name(f".{path.name}.{os.getpid()}-{secrets.token_hex(6)}.{tag}{path.suffix}")
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` runs on this machine (a reused pid counts as alive)."""
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, owned by someone else
+        return True
+    except OSError:  # pids this platform cannot signal: assume alive, never delete
+        return True
+    return True
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        path.unlink(missing_ok=True)
+
+
+def clean_stale(path: str | os.PathLike) -> list[Path]:
+    """Remove the temporary siblings of ``path`` that killed writers left behind.
+
+    A ``.tmp`` sibling is stale when the process named in it is gone (or it predates
+    pid naming). A stale ``.old`` sibling (a folder replacement killed between its two
+    renames) is moved back to ``path`` if ``path`` is missing, else removed.
+
+    Returns:
+        The siblings removed or restored (empty when there was nothing to clean).
+    """
+    path = Path(path)
+    if not path.parent.is_dir():
+        return []
+    pattern = re.compile(rf"^\.{re.escape(path.name)}\.(?:(\d+)-)?[0-9a-f]{{12}}\.(tmp|old){re.escape(path.suffix)}$")
+    stale: list[tuple[Path, str]] = []
+    for sibling in path.parent.iterdir():
+        match = pattern.match(sibling.name)
+        if match and not (match.group(1) and _alive(int(match.group(1)))):
+            stale.append((sibling, match.group(2)))
+    olds = sorted((p for p, tag in stale if tag == "old"), key=lambda p: p.stat().st_mtime)
+    if olds and not path.exists():
+        os.rename(olds.pop(), path)  # the newest previous version comes back
+    for sibling, tag in stale:
+        if tag == "tmp" or sibling in olds:
+            _remove(sibling)
+    return [p for p, _ in stale]
 
 
 @contextmanager
@@ -40,6 +98,7 @@ def atomic_file(path: str | os.PathLike) -> Iterator[Path]:
     path = Path(path)
     if not path.parent.is_dir():
         raise FormatError(path, f"cannot write: folder {path.parent} does not exist")
+    clean_stale(path)
     tmp = _sibling(path, "tmp")
     try:
         yield tmp
@@ -74,7 +133,7 @@ def atomic_folder(folder: str | os.PathLike, *, overwrite: bool = False, marker:
         if not folder.exists():
             return
         if not overwrite:
-            raise FileExistsError(f"{folder}: already exists (pass overwrite=True to replace it)")
+            raise FileExistsError(f"{folder}: already exists (overwriting was not asked for)")
         if not folder.is_dir():
             raise FileExistsError(f"{folder}: exists and is not a folder; not replacing it")
         if any(folder.iterdir()) and (marker is None or not (folder / marker).is_file()):
@@ -82,6 +141,7 @@ def atomic_folder(folder: str | os.PathLike, *, overwrite: bool = False, marker:
                 f"{folder}: exists and does not look like a folder this writer made (no {marker}); not replacing it"
             )
 
+    clean_stale(folder)
     check_target()
     folder.parent.mkdir(parents=True, exist_ok=True)
     tmp = _sibling(folder, "tmp")

@@ -4,15 +4,20 @@ Layout (left to right), each panel ``S x S``, the whole image ``S x 5S``, 8-bit 
 
     render | normal | diffuse | roughness | specular
 
-Encodings (SPEC section 2: INRIA PNGs hold linear values):
+Encodings (SPEC section 2: INRIA PNGs hold linear values), every panel included:
 
-- normal: ``(n + 1) / 2``; decoded and renormalised.
+- render: **linear** radiance, clipped to [0, 1] by the 8-bit panel; no tone map.
+  Re-rendering the ground-truth maps of 14 public files matches their render panel at
+  27.4 dB read as linear and 14.0 dB read as tone-mapped (issue 15), so the files store
+  linear values like the other panels. (Before that was measured, this reader undid a
+  ``x ** (1/2.2)`` tone map and its writer applied one.)
+- normal: ``(n + 1) / 2``; decoded and renormalised. Near-grazing normals can be stored
+  a few 8-bit steps below z = 0; such pixels are lifted to z = ``NORMAL_Z_FLOOR``
+  (renormalised) with a warning naming how many, as long as they are at most
+  ``MAX_BELOW_HORIZON_FRACTION`` of the panel; more means a different convention or a
+  broken file, and the file is refused.
 - diffuse, specular: linear values, no sRGB curve.
 - roughness: linear grey; channel 0 is taken.
-- render: **our choice** -- the render panel is stored tone-mapped,
-  ``clamp(x, 0, 1) ** (1/2.2)`` (SPEC tone map), which is how INRIA renders are
-  usually viewed; reading undoes it with ``inverse_tonemap``. Radiance above 1 is
-  clipped by the 8-bit panel.
 
 The dataset's panels are 288 x 288; any ``S`` is accepted as long as the panels are square.
 """
@@ -20,21 +25,54 @@ The dataset's panels are 288 x 288; any ``S`` is accepted as long as the panels 
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from kernels.tonemap import inverse_tonemap, tonemap
 from materials.io.encoding import chw_to_hwc, decode_normal, encode_normal, hwc_to_chw
 from materials.io.errors import FormatError
 from materials.io.png import read_png, write_png
 from materials.types import MapError, Material
 
-__all__ = ["read_inria", "write_inria", "INRIA_PANELS"]
+__all__ = ["read_inria", "write_inria", "INRIA_PANELS", "NORMAL_Z_FLOOR", "MAX_BELOW_HORIZON_FRACTION"]
 
 #: Panel order, left to right.
 INRIA_PANELS = ("render", "normal", "diffuse", "roughness", "specular")
+#: z given to a decoded normal that points (slightly) into the surface: one 8-bit step of
+#: the (n + 1) / 2 encoding, 2/255, the smallest z an 8-bit file can say is positive.
+NORMAL_Z_FLOOR = 2.0 / 255.0
+#: Most pixels of a normal panel that may point into the surface and still be clamped:
+#: 1%. Quantisation of near-grazing normals touches a handful (6 of 65,536 in a public
+#: file, 0.009%); a panel in another convention (e.g. signed values stored without the
+#: (n + 1) / 2 offset, which puts every z < 0.5 below 0) touches far more than 1%.
+MAX_BELOW_HORIZON_FRACTION = 1e-2
+
+
+def _lift_below_horizon(path: Path, normal: torch.Tensor) -> torch.Tensor:
+    """Normals ``[3, S, S]`` with z < 0 lifted to z = NORMAL_Z_FLOOR and renormalised
+    (warning with the count); FormatError when there are too many (module docstring)."""
+    below = normal[2] < 0
+    count = int(below.sum())
+    if count == 0:
+        return normal
+    total = below.numel()
+    if count > MAX_BELOW_HORIZON_FRACTION * total:
+        raise FormatError(
+            path,
+            f"{count} of {total} normal pixels ({100 * count / total:.2f}%) point into the surface (z < 0); "
+            f"at most {100 * MAX_BELOW_HORIZON_FRACTION:g}% are taken as 8-bit quantisation and clamped "
+            "(is the normal panel in another convention?)",
+        )
+    warnings.warn(
+        f"{path}: {count} of {total} normal pixels had z < 0 (8-bit quantisation of near-grazing normals); "
+        f"lifted to z = {NORMAL_Z_FLOOR:.4f} and renormalised",
+        stacklevel=3,
+    )
+    lifted = normal.clone()
+    lifted[2] = torch.where(below, torch.full_like(normal[2], NORMAL_Z_FLOOR), normal[2])
+    return torch.nn.functional.normalize(lifted, dim=0)
 
 
 def read_inria(path: str | os.PathLike) -> tuple[Material, torch.Tensor]:
@@ -46,10 +84,14 @@ def read_inria(path: str | os.PathLike) -> tuple[Material, torch.Tensor]:
     Returns:
         ``(material, render)``: an unbatched CPU float32 ``Material`` (``[C, S, S]``
         maps, linear, validated) and the render panel as linear radiance
-        ``[3, S, S]`` in [0, 1] (tone map undone).
+        ``[3, S, S]`` in [0, 1], as stored.
+
+    Warns:
+        UserWarning: normal pixels below the surface were clamped (how many).
 
     Raises:
-        FormatError: not an 8-bit PNG, alpha, not RGB, width != 5 * height.
+        FormatError: not an 8-bit PNG, alpha, not RGB, width != 5 * height, more than
+            ``MAX_BELOW_HORIZON_FRACTION`` of the normals below the surface.
         MapError: invalid map values (the file is named).
     """
     path = Path(path)
@@ -73,11 +115,11 @@ def read_inria(path: str | os.PathLike) -> tuple[Material, torch.Tensor]:
     panels = {name: hwc_to_chw(image[:, i * side : (i + 1) * side]) for i, name in enumerate(INRIA_PANELS)}
     material = Material(
         diffuse=panels["diffuse"],
-        normal=decode_normal(panels["normal"]),
+        normal=_lift_below_horizon(path, decode_normal(panels["normal"])),
         roughness=panels["roughness"][:1].contiguous(),
         specular=panels["specular"],
     ).validate(source=str(path))
-    return material, inverse_tonemap(panels["render"])
+    return material, panels["render"]
 
 
 def write_inria(path: str | os.PathLike, material: Material, render: torch.Tensor) -> Path:
@@ -86,7 +128,8 @@ def write_inria(path: str | os.PathLike, material: Material, render: torch.Tenso
     Args:
         path: target ``.png``.
         material: unbatched square maps ``[C, S, S]`` (validated first).
-        render: ``[3, S, S]`` linear radiance; stored tone-mapped (module docstring).
+        render: ``[3, S, S]`` linear radiance; stored linear, clipped to [0, 1] by the
+            8-bit panel (module docstring).
 
     Returns:
         The path written.
@@ -105,7 +148,7 @@ def write_inria(path: str | os.PathLike, material: Material, render: torch.Tenso
     material.validate(source=f"write_inria({path})")
     m = material.to("cpu", torch.float32)
     panels = {
-        "render": tonemap(render.detach().to("cpu", torch.float32)),
+        "render": render.detach().to("cpu", torch.float32).clamp(0.0, 1.0),
         "normal": encode_normal(m.normal),
         "diffuse": m.diffuse.clamp(0.0, 1.0),
         "roughness": m.roughness.clamp(0.0, 1.0).expand(3, -1, -1),

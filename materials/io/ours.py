@@ -68,8 +68,14 @@ _MAPS: dict[str, tuple[tuple[str, ...], str]] = {
     "roughness": (GREY, "linear"),
     "specular": (RGB, "srgb"),
 }
+# What each map's EXR holds (material.json "files"; the PNG twins use _ENCODING_NOTES).
+_EXR_NOTES = {
+    "diffuse": "float32 R,G,B linear albedo in [0, 1]",
+    "normal": "float32 R,G,B signed unit x, y, z (tangent space, OpenGL: +y up)",
+    "roughness": "float32 Y linear roughness in [0, 1] (alpha = roughness^2)",
+    "specular": "float32 R,G,B linear F0 in [0, 1]",
+}
 _ENCODING_NOTES = {
-    "exr": "float32 linear values (normal: signed unit x, y, z)",
     "srgb": "8-bit sRGB-encoded (IEC 61966-2-1)",
     "normal": "8-bit (n + 1) / 2, OpenGL tangent space",
     "linear": "8-bit linear grey",
@@ -176,7 +182,7 @@ def write_material(
         for name, (channels, encoding) in _MAPS.items():
             write_exr(tmp / f"{name}.exr", chw_to_hwc(maps[name]), channels)
             write_png(tmp / f"{name}.png", chw_to_hwc(_encode_png(name, maps[name])))
-            files[f"{name}.exr"] = _ENCODING_NOTES["exr"]
+            files[f"{name}.exr"] = _EXR_NOTES[name]
             files[f"{name}.png"] = _ENCODING_NOTES[encoding]
         _json_dump(
             tmp / MATERIAL_JSON,

@@ -8,6 +8,7 @@ the procedural generator.
 from __future__ import annotations
 
 import json
+import os
 import struct
 import zlib
 from pathlib import Path
@@ -41,8 +42,9 @@ from materials.io import (
     write_material,
     write_png,
 )
-from materials.io.atomic import atomic_file
+from materials.io.atomic import atomic_file, atomic_folder, clean_stale
 from materials.io.encoding import decode_normal, encode_normal
+from materials.io.inria import MAX_BELOW_HORIZON_FRACTION, NORMAL_Z_FLOOR
 from materials.types import Capture, MapError, Material
 
 #: One 8-bit quantisation step in the *encoded* domain (what the PNG stores). Writing
@@ -513,14 +515,60 @@ def test_inria_round_trip(tmp_path):
         assert (getattr(back, name) - getattr(material, name)).abs().max() <= ENCODED_TOL, name
     assert (back.normal - material.normal).abs().max() <= NORMAL_TOL
     assert render_back.shape == (3, SIZE, SIZE)
-    assert (tonemap(render_back) - tonemap(render)).abs().max() <= ENCODED_TOL
+    # The render panel is linear (issue 15): stored and read back without a tone map.
+    assert (render_back - render).abs().max() <= ENCODED_TOL
+
+
+def test_inria_render_panel_is_linear_and_clipped(tmp_path):
+    material = make_material(seed=4)
+    render = torch.linspace(0.0, 1.5, 3 * SIZE * SIZE).reshape(3, SIZE, SIZE)
+    path = tmp_path / "lin.png"
+    write_inria(path, material, render)
+    stored = np.asarray(Image.open(path))[:, :SIZE].astype(np.float32) / 255.0
+    # 8-bit codes are round(255 * clamp(x, 0, 1)): linear, radiance above 1 clipped.
+    expected = np.round(np.clip(hwc(render), 0, 1) * 255) / 255
+    assert np.abs(stored - expected).max() <= 1e-6
+    _, back = read_inria(path)
+    assert torch.allclose(back, torch.from_numpy(stored).permute(2, 0, 1))
+
+
+def _inria_sheet_with_normals(path: Path, normal_codes: np.ndarray) -> None:
+    s = normal_codes.shape[0]
+    panels = [np.full((s, s, 3), 0.5), normal_codes / 255.0, np.full((s, s, 3), 0.5), np.full((s, s, 3), 0.5),
+              np.full((s, s, 3), 0.04)]  # fmt: skip
+    write_png(path, np.concatenate(panels, axis=1).astype(np.float32))
+
+
+def test_inria_lifts_a_few_normals_below_the_surface(tmp_path):
+    codes = np.tile(np.array([128.0, 128.0, 255.0]), (SIZE, SIZE, 1))
+    codes[0, 0] = [255, 128, 126]  # grazing +x normal quantised to z = 2 * 126/255 - 1 < 0
+    codes[3, 5] = [128, 0, 125]
+    path = tmp_path / "grazing.png"
+    _inria_sheet_with_normals(path, codes)
+    with pytest.warns(UserWarning, match=r"2 of 256 normal pixels had z < 0"):
+        material, _ = read_inria(path)
+    z = material.normal[2]
+    assert float(z.min()) > 0
+    assert abs(float(z[0, 0]) - NORMAL_Z_FLOOR) < 1e-3 and float(material.normal[0, 0, 0]) > 0.99
+    assert torch.allclose(material.normal.norm(dim=0), torch.ones(SIZE, SIZE), atol=1e-6)
+
+
+def test_inria_refuses_many_normals_below_the_surface(tmp_path):
+    codes = np.tile(np.array([128.0, 128.0, 255.0]), (SIZE, SIZE, 1))
+    bad = int(MAX_BELOW_HORIZON_FRACTION * SIZE * SIZE) + 1
+    codes.reshape(-1, 3)[:bad] = [255, 128, 100]
+    path = tmp_path / "flipped.png"
+    _inria_sheet_with_normals(path, codes)
+    with pytest.raises(FormatError) as err:
+        read_inria(path)
+    assert_names(err, path, f"{bad} of 256 normal pixels", "into the surface")
 
 
 def test_inria_panel_order_and_encodings(tmp_path):
     # Build the sheet by hand: render | normal | diffuse | roughness | specular.
     s = 4
     panels = [
-        np.full((s, s, 3), 0.5),  # render, tone-mapped
+        np.full((s, s, 3), 0.5),  # render, linear
         np.tile([0.5, 0.5, 1.0], (s, s, 1)),  # normal (0, 0, 1) as (n+1)/2
         np.tile([0.8, 0.4, 0.2], (s, s, 1)),  # diffuse, linear
         np.full((s, s, 3), 0.6),  # roughness grey
@@ -534,7 +582,7 @@ def test_inria_panel_order_and_encodings(tmp_path):
     assert torch.allclose(material.specular[:, 0, 0], torch.tensor([q(0.1), q(0.2), q(0.3)]))
     assert material.roughness.shape == (1, s, s) and abs(float(material.roughness[0, 0, 0]) - q(0.6)) < 1e-6
     assert torch.allclose(material.normal[:, 0, 0], torch.tensor([0.0, 0.0, 1.0]), atol=NORMAL_TOL)
-    assert abs(float(render[0, 0, 0]) - q(0.5) ** 2.2) < 1e-6
+    assert abs(float(render[0, 0, 0]) - q(0.5)) < 1e-6  # linear, as stored
 
 
 @pytest.mark.parametrize(
@@ -816,3 +864,52 @@ def test_format_error_pickles():
 
     err = pickle.loads(pickle.dumps(FormatError("a/b.png", "file is empty")))
     assert isinstance(err, FormatError) and str(err) == "a/b.png: file is empty" and err.path == "a/b.png"
+
+
+# ----------------------------------------------------------------------------- atomic leftovers
+def _dead_pid() -> int:
+    """A pid no process has: one past the largest possible (Linux pid_max <= 2^22)."""
+    return 4_194_304 + 1
+
+
+def test_killed_writers_leftovers_are_cleaned_by_the_next_write(tmp_path):
+    target = tmp_path / "out"
+    dead = tmp_path / f".out.{_dead_pid()}-0123456789ab.tmp"
+    legacy = tmp_path / ".out.abcdefabcdef.tmp"  # named before pids were recorded
+    live = tmp_path / f".out.{os.getpid()}-0123456789ab.tmp"  # this process: still writing
+    unrelated = tmp_path / ".other.0123456789ab.tmp"
+    for folder in (dead, legacy, live, unrelated):
+        folder.mkdir()
+        (folder / "big.bin").write_bytes(b"x" * 1000)
+    with atomic_folder(target, marker="m.txt") as tmp:
+        (tmp / "m.txt").write_text("done")
+    assert (target / "m.txt").read_text() == "done"
+    assert not dead.exists() and not legacy.exists()
+    assert live.exists() and unrelated.exists()
+
+
+def test_a_folder_replacement_killed_between_renames_is_restored(tmp_path):
+    # Killed after moving the old folder aside and before moving the new one in.
+    old = tmp_path / f".out.{_dead_pid()}-0123456789ab.old"
+    old.mkdir()
+    (old / "m.txt").write_text("previous")
+    assert clean_stale(tmp_path / "out") == [old]
+    assert (tmp_path / "out" / "m.txt").read_text() == "previous" and not old.exists()
+
+
+def test_material_json_describes_each_exr(tmp_path):
+    write_material(tmp_path / "m", make_material())
+    files = json.loads((tmp_path / "m" / "material.json").read_text())["files"]
+    assert "albedo" in files["diffuse.exr"] and "signed" not in files["diffuse.exr"]
+    assert "roughness" in files["roughness.exr"] and "signed" not in files["roughness.exr"]
+    assert "F0" in files["specular.exr"] and "signed" not in files["specular.exr"]
+    assert "signed unit x, y, z" in files["normal.exr"]
+
+
+def test_capture_detection_says_what_our_format_needs(tmp_path):
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    write_png(folder / "0.png", np.zeros((8, 8, 3), np.float32))
+    with pytest.raises(FormatError) as err:
+        detect_capture_format(folder)
+    assert_names(err, folder, "no capture.json", "light_pos", "camera_pos", "Capture folder format")
