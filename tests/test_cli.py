@@ -102,8 +102,8 @@ WRITERS = {
     "convert": ["convert", "{sheet}", "--from", "inria"],
     "generate": ["generate", "{photo}", "--model", "lambertian"],
     "estimate": ["estimate", "{nothing}"],
-    "eval relight": ["eval", "relight", "--count", "1", "--size", "16", "--methods", "lambertian"],
-    "eval estimator": ["eval", "estimator", "--num", "1", "--size", "16", "--refine-steps", "0"],
+    "eval relighting": ["eval", "relighting", "--count", "1", "--size", "16", "--methods", "lambertian"],
+    "eval estimation": ["eval", "estimation", "--num", "1", "--size", "16", "--refine-steps", "0"],
 }
 
 
