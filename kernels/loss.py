@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import cast
 
 import torch
 
@@ -188,7 +189,7 @@ def map_rendering_loss(
     if (light_pos is None) != (camera_pos is None):
         raise ValueError("give both light_pos and camera_pos, or neither")
     p = resolve_preset(preset, **overrides)
-    if light_pos is None:
+    if light_pos is None or camera_pos is None:  # both None (checked above)
         light_pos, camera_pos = sample_loss_lights(
             pred[0].shape[0],
             plane_size=p.plane_size,
@@ -197,5 +198,8 @@ def map_rendering_loss(
             device=pred[0].device,
         )
     with torch.no_grad():
-        target_images = render(*[t.detach() for t in target], light_pos, camera_pos, preset=p)
-    return rendering_loss(*pred, target_images, light_pos, camera_pos, preset=p, eps=eps)
+        d, n, r, s = (t.detach() for t in target)
+        # return_lvh=False: one tensor (``render``'s return type also covers the pair).
+        target_images = cast(torch.Tensor, render(d, n, r, s, light_pos, camera_pos, preset=p))
+    diffuse, normal, roughness, specular = pred
+    return rendering_loss(diffuse, normal, roughness, specular, target_images, light_pos, camera_pos, preset=p, eps=eps)

@@ -107,7 +107,8 @@ def lvh_maps(light_pos, camera_pos, size, *, preset="dgrsise", plane_size=None) 
     batch = light_pos.shape[0] if light_pos.dim() == 3 else 1
     light = _positions(light_pos, batch).detach()
     camera = _positions(camera_pos, batch, light.shape[1]).detach()
-    x = plane_points(*size, p.plane_size, dtype=light.dtype, device=light.device)
+    h, w = size
+    x = plane_points(h, w, p.plane_size, dtype=light.dtype, device=light.device)
     l = _normalize(light[..., None, None] - x, 2)
     v = _normalize(camera[..., None, None] - x, 2)
     return torch.cat([l, v, _normalize(l + v, 2)], dim=2)

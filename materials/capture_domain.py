@@ -37,6 +37,7 @@ from __future__ import annotations
 import io
 import math
 from dataclasses import dataclass, fields, replace
+from typing import Any
 
 import numpy as np
 import torch
@@ -206,7 +207,7 @@ class CaptureDomain:
     def switched(self, **effects: bool) -> CaptureDomain:
         """Switch effects by name (``noise=False``; True keeps the current probability,
         or sets 1 where it is 0). Names: the ``p_`` fields without the prefix."""
-        changes = {}
+        changes: dict[str, Any] = {}
         for name, on in effects.items():
             key = f"p_{name}"
             if not hasattr(self, key):
@@ -391,8 +392,12 @@ def render_geometry(material: Material, geometry: CaptureGeometry) -> torch.Tens
     # One gain for the whole group (what sample_geometry draws) goes into the render's
     # intensity, so the paper setup renders bit-identically to kernels.render's default.
     uniform = bool((gain == gain[0]).all())
+    d, n, r, s = (t[None] for t in material.map_tensors())
     images = kernels.render(
-        *(t[None] for t in material.map_tensors()),
+        d,
+        n,
+        r,
+        s,
         geometry.light.to(material.device),
         geometry.camera.to(material.device),
         preset="dgrsise",

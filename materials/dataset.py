@@ -96,7 +96,8 @@ def render_group(
 ) -> torch.Tensor:
     """Render one unbatched material under V lights (``light_pos``, ``camera_pos``:
     ``[V, 3]``): ``[V, 3, H, W]`` linear radiance."""
-    return kernels.render(*(t[None] for t in material.map_tensors()), light_pos, camera_pos, preset=preset)[0]
+    d, n, r, s = (t[None] for t in material.map_tensors())
+    return kernels.render(d, n, r, s, light_pos, camera_pos, preset=preset)[0]
 
 
 class RenderedGroups(Dataset):

@@ -9,6 +9,7 @@ Both are ``ValueError`` subclasses, so ``except ValueError`` catches either.
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 
 __all__ = ["FormatError", "require_same_size"]
 
@@ -40,7 +41,7 @@ class FormatError(ValueError):
         return (type(self), (self.path, self.problem))
 
 
-def require_same_size(path: str | os.PathLike, sizes: dict[str, tuple[int, int]]) -> tuple[int, int]:
+def require_same_size(path: str | os.PathLike, sizes: Mapping[str, tuple[int, ...]]) -> tuple[int, int]:
     """Check that every named map or image has the same (H, W); return it.
 
     Args:
@@ -54,4 +55,5 @@ def require_same_size(path: str | os.PathLike, sizes: dict[str, tuple[int, int]]
     if len(distinct) != 1:
         listing = ", ".join(f"{name} {h}x{w}" for name, (h, w) in sizes.items())
         raise FormatError(path, f"sizes differ (H x W): {listing}; all must match")
-    return next(iter(distinct))
+    height, width = next(iter(distinct))
+    return height, width

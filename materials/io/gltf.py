@@ -39,7 +39,7 @@ _FLOAT, _UNSIGNED_SHORT = 5126, 5123
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
 _LINEAR, _LINEAR_MIPMAP_LINEAR, _CLAMP_TO_EDGE = 9729, 9987, 33071
 _COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
-_DTYPES = {_FLOAT: np.dtype("<f4"), _UNSIGNED_SHORT: np.dtype("<u2")}
+_DTYPES: dict[int, np.dtype] = {_FLOAT: np.dtype("<f4"), _UNSIGNED_SHORT: np.dtype("<u2")}
 
 
 def _pad4(data: bytes, fill: bytes) -> bytes:

@@ -183,7 +183,8 @@ def _decode_pil(path: Path, kind: str, img: Image.Image, rawmode) -> tuple[np.nd
         for raw in (rawmode, rawmode.replace("16B", "16L")):
             with Image.open(path) as part:
                 t = part.tile[0]
-                part.tile = [t._replace(args=raw) if hasattr(t, "_replace") else (*t[:3], raw)]
+                # Pillow's tile entries are a private type (a namedtuple in new versions).
+                part.tile = [t._replace(args=raw) if hasattr(t, "_replace") else (*t[:3], raw)]  # type: ignore[list-item]
                 part.load()
                 planes.append(np.asarray(part).astype(np.uint32))
         pixels = ((planes[0] << 8) | planes[1]).astype(np.float32) / 65535.0
@@ -310,6 +311,7 @@ def _read_exr_photo(path: Path, limits: tuple[int, int, int]) -> Photo:
         raise FormatError(path, f"cannot decode the EXR header (truncated or corrupt file?): {err}") from err
     height, width = int(y1 - y0 + 1), int(x1 - x0 + 1)
     _check_size(path, height, width, *limits)
+    order: tuple[str, ...]
     if names == {"R", "G", "B"}:
         order, channels = ("R", "G", "B"), 3
     elif names == {"R", "G", "B", "A"}:

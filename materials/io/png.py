@@ -94,9 +94,9 @@ def read_ldr(path: str | os.PathLike) -> np.ndarray:
             img.load()
             mode = img.mode
             transparency = "transparency" in img.info
-            if mode in ("P", "1"):
-                img = img.convert("RGB" if mode == "P" else "L")
-            pixels = np.asarray(img)
+            # Palette and 1-bit images are expanded first (``convert`` returns a new image).
+            decoded = img.convert("RGB" if mode == "P" else "L") if mode in ("P", "1") else img
+            pixels = np.asarray(decoded)
     except (OSError, SyntaxError, ValueError) as err:  # Pillow's errors for bad data
         raise FormatError(path, f"cannot decode the {kind} data (truncated or corrupt file?): {err}") from err
 

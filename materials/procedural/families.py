@@ -388,7 +388,7 @@ def stone(gen: torch.Generator, size: int, glossy: bool, device="cpu") -> Layers
         shade = 1 + (torch.rand(cells * cells, 1, generator=gen) * 2 - 1) * 0.15
         dx, dy = fbm(gen, size, 8, octaves=3, channels=2, device=device) * (0.4 / cells)
         c = worley(gen, x + dx, y + dy, cells, jitter=0.9)
-        per_cell = _lookup(torch.cat([minerals[which] * shade, shade], dim=1), c.index)
+        per_cell = _lookup(torch.cat([minerals[which] * shade, shade], dim=1), c.cell)
         diffuse = per_cell[:3] * (1 + 0.08 * fine)
         border = (1 - smoothstep(0.0, 0.08, c.f2 - c.f1))[None]
         # Polished granite is flat; flamed / honed granite keeps grain relief.
@@ -420,10 +420,10 @@ def stone(gen: torch.Generator, size: int, glossy: bool, device="cpu") -> Layers
         gap = c.f2 - c.f1  # cell widths
         face = smoothstep(joint, joint + max(0.1, 1.5 * cells / size), gap)[None]  # rounded edge
         solid = _edge(joint / cells, gap / cells, size)  # stone vs mortar
-        stone_col = _lookup(colors, c.index) * (1 + 0.15 * relief + 0.1 * fine)
+        stone_col = _lookup(colors, c.cell) * (1 + 0.15 * relief + 0.1 * fine)
         mortar_col = _fill(mortar_color, size, device) * (1 + 0.15 * fine)
         diffuse = _lerp(mortar_col, stone_col, solid)
-        height = face * (4e-3 + 1.5e-3 * _lookup(lift, c.index) + 8e-4 * relief) + 2e-4 * fine
+        height = face * (4e-3 + 1.5e-3 * _lookup(lift, c.cell) + 8e-4 * relief) + 2e-4 * fine
         roughness = _lerp(torch.full_like(solid, 0.95), base_r * (1 + 0.1 * fine), solid)
         f0_map = _lerp(torch.full_like(solid, 0.03), torch.full_like(solid, f0), solid)
         return _done(height, diffuse, roughness, _grey(f0_map, size, device))
@@ -707,7 +707,7 @@ def terrazzo(gen: torch.Generator, size: int, glossy: bool, device="cpu") -> Lay
         dx, dy = fbm(gen, size, 6, octaves=3, channels=2, device=device) * (0.15 / cells)
         c = worley(gen, x + dx, y + dy, cells, jitter=0.9)
         # Shrunken Voronoi cells give the angular shard outline of crushed stone.
-        per_cell = _lookup(table, c.index)
+        per_cell = _lookup(table, c.cell)
         chip = _edge(gap / cells, (c.f2 - c.f1) / cells, size) * per_cell[3:]  # in tile units
         chip_col = per_cell[:3]
         diffuse = _lerp(diffuse, chip_col * (1 + 0.05 * speckle), chip)

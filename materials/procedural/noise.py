@@ -250,13 +250,13 @@ class Cells(NamedTuple):
     """Worley noise of one jittered grid, each ``[N, N]``.
 
     f1, f2: distances to the nearest and second-nearest feature point, in cell widths.
-    index: int64 index (row * cells + col, in [0, cells^2)) of the nearest point's
+    cell: int64 index (row * cells + col, in [0, cells^2)) of the nearest point's
         cell, for per-cell random lookups.
     """
 
     f1: torch.Tensor
     f2: torch.Tensor
-    index: torch.Tensor
+    cell: torch.Tensor
 
 
 def wrap(a: torch.Tensor, n: float) -> torch.Tensor:
