@@ -167,12 +167,41 @@ def checkpoint_step(folder: str | Path) -> int | None:
 
 
 def latest_checkpoint(ckpt_dir: str | Path) -> Path | None:
-    """The newest complete checkpoint folder in ``ckpt_dir`` (``latest``), or None."""
-    pointer = Path(ckpt_dir) / "latest"
+    """The newest complete checkpoint folder in ``ckpt_dir`` (``latest``), or None.
+
+    Raises:
+        ValueError: ``ckpt_dir`` holds a checkpoint in a layout from before this module
+            (the trainers' own, with a pickled ``state.pt`` or a separate optimizer file):
+            it cannot be resumed, and starting over in the same folder would mix runs.
+    """
+    ckpt_dir = Path(ckpt_dir)
+    _refuse_old_layouts(ckpt_dir)
+    pointer = ckpt_dir / "latest"
     if not pointer.is_file():
         return None
-    folder = Path(ckpt_dir) / pointer.read_text().strip()
-    return folder if (folder / _MARKER).is_file() else None
+    folder = ckpt_dir / pointer.read_text().strip()
+    if not (folder / _MARKER).is_file():
+        return None
+    if not (folder / "state.safetensors").is_file():
+        raise _old_layout(folder)
+    return folder
+
+
+def _old_layout(folder: Path) -> ValueError:
+    return ValueError(
+        f"{folder}: a checkpoint in an old layout, which cannot be resumed; use a new --ckpt-dir "
+        f"(the weights in {folder / MODEL_DIR} still load with from_pretrained, and the estimator "
+        f"trainer can start from them with --init-from)"
+    )
+
+
+def _refuse_old_layouts(ckpt_dir: Path) -> None:
+    if (ckpt_dir / "latest").is_dir():  # the diffusion trainer's latest/ folder with state.pt
+        raise _old_layout(ckpt_dir / "latest")
+    if ckpt_dir.is_dir():
+        for p in ckpt_dir.glob("step_*"):  # the Bieron trainer's step_NNNNNNN/ folders
+            if (p / "state.pt").is_file():
+                raise _old_layout(p)
 
 
 def read_trainer_state(folder: str | Path) -> dict:

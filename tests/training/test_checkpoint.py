@@ -159,6 +159,22 @@ def test_latest_is_none_for_an_empty_or_missing_folder(tmp_path):
     assert latest_checkpoint(tmp_path / "nowhere") is None
 
 
+@pytest.mark.parametrize(
+    "files",
+    [
+        ["latest/state.pt", "latest/model/relight_config.json"],  # the diffusion trainer's
+        ["step_0000947/state.pt", "step_0000947/model/config.json"],  # the Bieron trainer's
+        ["latest", "checkpoint-0000100/optimizer.safetensors", "checkpoint-0000100/trainer_state.json"],  # estimator
+    ],
+)
+def test_old_layouts_are_refused_with_a_way_out(tmp_path, files):
+    for name in files:
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text("checkpoint-0000100\n" if name == "latest" else "{}")
+    with pytest.raises(ValueError, match="old layout.*new --ckpt-dir"):
+        latest_checkpoint(tmp_path)
+
+
 def test_flatten_state_round_trip_and_refusals():
     model = torch.nn.Linear(3, 2)
     opt = torch.optim.AdamW(model.parameters())
