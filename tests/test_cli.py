@@ -181,3 +181,31 @@ def test_synth_inria_round_trips_a_linear_render(tmp_path):
     expected = kernels.render(*(t[None] for t in generate(seed, size=32).map_tensors()), flash, flash[0])[0, 0]
     # Linear radiance, clipped to [0, 1], to within half an 8-bit step (plus float slack).
     assert (render - expected.clamp(0, 1)).abs().max() <= 0.5 / 255 + 1e-6
+
+
+@pytest.mark.parametrize("target", ["diffusion", "bieron", "estimator"])
+def test_train_targets_show_their_flags(target, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["train", target, "--help"])
+    assert exit_info.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f"usage: relight train {target}") and "--ckpt-dir" in out and "--model." in out
+
+
+def test_train_relight_is_an_alias_of_diffusion_for_one_release(tmp_path, monkeypatch, capsys):
+    import relight.diffusion.train as trainer
+
+    seen = []
+    monkeypatch.setattr(trainer, "main", seen.append)  # parse only; no training
+    assert main(["train", "relight", "--steps", "3", "--ckpt-dir", str(tmp_path)]) == 0
+    assert seen[0].steps == 3 and seen[0].ckpt_dir == str(tmp_path)
+    err = capsys.readouterr().err
+    assert "deprecated" in err and "relight train diffusion" in err and len(err.strip().splitlines()) == 1
+    assert main(["train", "diffusion", "--steps", "3"]) == 0
+    assert "deprecated" not in capsys.readouterr().err
+
+
+def test_train_rejects_an_unknown_target(capsys):
+    with pytest.raises(SystemExit):
+        main(["train", "unet"])
+    assert "invalid choice" in capsys.readouterr().err

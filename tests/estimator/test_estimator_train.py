@@ -11,12 +11,17 @@ import torch.nn.functional as F
 from safetensors.torch import load_file
 
 from estimator import SVBRDFEstimator, estimator_loss
-from estimator.checkpoint import flatten_state, latest_checkpoint, unflatten_state
-from estimator.config import TINY_TEST_CONFIG, EstimatorConfig
 from estimator.losses import NORMAL_MSE_SCALE
-from estimator.train import StepBatchSampler, TrainConfig, main, parse_args, select_views
+from estimator.train import EstimatorModelConfig, StepBatchSampler, TrainConfig, main, parse_args, select_views
 from materials.dataset import TRAIN_SEEDS, GroupConfig, RenderedGroups
 from materials.types import Material
+from training.checkpoint import flatten_state, latest_checkpoint, unflatten_state
+from training.config import config_of
+
+#: The tiny architecture of the fast tests (32 x 32 images, a few thousand parameters).
+TINY = EstimatorModelConfig(
+    base_channels=8, channel_mults=(1, 2, 4), adapter_width=8, norm_groups=4, shading_channels=4
+)
 
 #: Overfitting a fixed batch of 2 materials x 3 views with the tiny model: the loss
 #: falls to ~28% of its start in 60 Adam steps (measured, 1 thread); 50% leaves room for noise.
@@ -39,7 +44,7 @@ def _tiny_train_config(tmp_path, **kw) -> TrainConfig:
         ckpt_every=2,
         log_every=2,
         progress=False,
-        model=TINY_TEST_CONFIG,
+        model=TINY,
     )
     base.update(kw)
     return TrainConfig(**base)
@@ -50,7 +55,7 @@ def test_overfits_a_fixed_batch():
     data = RenderedGroups(TRAIN_SEEDS[:2], GroupConfig(size=32, views=3, source_size=64))
     batch = torch.utils.data.default_collate([data[0], data[1]])
     target = Material.from_stacked(batch["maps"])
-    model = SVBRDFEstimator(**TINY_TEST_CONFIG.to_dict())
+    model = SVBRDFEstimator(**dataclasses.asdict(TINY))
     opt = torch.optim.Adam(model.parameters(), lr=3e-3)
     losses = []
     for _ in range(OVERFIT_STEPS):
@@ -121,24 +126,25 @@ def test_train_resume_matches_uninterrupted_run(tmp_path):
     assert len(list((tmp_path / "b" / "ckpt").glob("checkpoint-*"))) <= 2
 
 
-def test_resume_a_run_saved_before_the_shading_branch(tmp_path):
-    """A checkpoint whose config has no shading_channels / normal_loss (written before they
-    existed) resumes as shading_channels=0; asking for a branch is refused, not crashed."""
-    plain = dataclasses.replace(TINY_TEST_CONFIG, shading_channels=0)
-    main(_tiny_train_config(tmp_path, steps=2, model=plain, normal_loss="l1"))
-    state_file = latest_checkpoint(tmp_path / "ckpt") / "trainer_state.json"
-    state = json.loads(state_file.read_text())
-    del state["config"]["model"]["shading_channels"], state["config"]["normal_loss"]
-    state_file.write_text(json.dumps(state))
+def test_resume_a_run_whose_model_predates_the_shading_branch(tmp_path):
+    """A checkpoint whose model/config.json has no shading_channels (saved before the
+    field existed) resumes as the model package loads it (no branch); asking for a branch
+    is refused, not crashed."""
+    plain = dataclasses.replace(TINY, shading_channels=0)
+    main(_tiny_train_config(tmp_path, steps=2, model=plain))
+    config_file = latest_checkpoint(tmp_path / "ckpt") / "model" / "config.json"
+    saved = json.loads(config_file.read_text())
+    del saved["shading_channels"]
+    config_file.write_text(json.dumps(saved))
     with pytest.raises(ValueError, match="architecture"):
-        main(_tiny_train_config(tmp_path, steps=3))  # today's default has the branch
-    main(_tiny_train_config(tmp_path, steps=3, model=plain, normal_loss="l1"))
+        main(_tiny_train_config(tmp_path, steps=3))  # TINY has the branch
+    main(_tiny_train_config(tmp_path, steps=3, model=plain))
     assert latest_checkpoint(tmp_path / "ckpt").name.endswith("0000003")
 
 
 def test_resume_refuses_a_different_architecture(tmp_path):
     main(_tiny_train_config(tmp_path, steps=2))
-    other = EstimatorConfig(base_channels=4, channel_mults=(1, 2, 4), adapter_width=4, norm_groups=4)
+    other = EstimatorModelConfig(base_channels=4, channel_mults=(1, 2, 4), adapter_width=4, norm_groups=4)
     with pytest.raises(ValueError, match="architecture"):
         main(_tiny_train_config(tmp_path, steps=3, model=other))
 
@@ -162,7 +168,8 @@ def test_parse_args_builds_the_dataclass():
     assert cfg.steps == 7 and cfg.size == 48 and cfg.resume is False and cfg.num_threads == 1
     assert cfg.model.base_channels == 8 and cfg.model.channel_mults == (1, 2, 4)
     assert cfg.source_size == 96
-    assert parse_args([]).model == EstimatorConfig()
+    # The default architecture is the model's own (its signature is the only copy).
+    assert parse_args([]).model == config_of(EstimatorModelConfig, SVBRDFEstimator())
 
 
 def test_init_from_starts_at_the_saved_weights(tmp_path):
@@ -179,17 +186,17 @@ def test_init_from_starts_at_the_saved_weights(tmp_path):
 def test_init_from_grows_the_shading_branch(tmp_path, random_views):
     """A model saved without the shading branch starts a run with one: every saved weight
     is copied and the zero-initialised shading head leaves the output unchanged."""
-    plain = dataclasses.replace(TINY_TEST_CONFIG, shading_channels=0)
+    plain = dataclasses.replace(TINY, shading_channels=0)
     source = main(_tiny_train_config(tmp_path / "a", steps=1, model=plain))
     grown = main(_tiny_train_config(tmp_path / "b", steps=1, lr=0.0, init_from=str(source)))
     a = SVBRDFEstimator.from_pretrained(source).eval()
     b = SVBRDFEstimator.from_pretrained(grown).eval()
-    assert b.arch == TINY_TEST_CONFIG and a.arch == plain
+    assert config_of(EstimatorModelConfig, b) == TINY and config_of(EstimatorModelConfig, a) == plain
     images, light, camera = random_views(1, 3, seed=2)
     with torch.no_grad():
         torch.testing.assert_close(b(images, light, camera).stacked(), a(images, light, camera).stacked())
     # Only "no branch -> branch" grows; other differences are still refused.
-    wider = dataclasses.replace(TINY_TEST_CONFIG, shading_channels=8)
+    wider = dataclasses.replace(TINY, shading_channels=8)
     with pytest.raises(ValueError, match="architecture"):
         main(_tiny_train_config(tmp_path / "c", steps=1, model=wider, init_from=str(grown)))
 
@@ -198,7 +205,7 @@ def test_init_from_refuses_a_missing_folder_or_another_architecture(tmp_path):
     with pytest.raises(FileNotFoundError, match="init_from"):
         main(_tiny_train_config(tmp_path / "x", steps=1, init_from=str(tmp_path / "nowhere")))
     source = main(_tiny_train_config(tmp_path / "a", steps=1))
-    other = EstimatorConfig(base_channels=4, channel_mults=(1, 2, 4), adapter_width=4, norm_groups=4)
+    other = EstimatorModelConfig(base_channels=4, channel_mults=(1, 2, 4), adapter_width=4, norm_groups=4)
     with pytest.raises(ValueError, match="architecture"):
         main(_tiny_train_config(tmp_path / "b", steps=1, model=other, init_from=str(source)))
 

@@ -1,11 +1,12 @@
 """Two-process training through HF accelerate on the CPU (the multi-process path)."""
 
-import json
 import os
 import subprocess
 import sys
 
 import pytest
+
+from training.checkpoint import latest_checkpoint, read_trainer_state
 
 
 @pytest.mark.slow
@@ -32,15 +33,15 @@ def test_two_process_accelerate_smoke(tmp_path):
         str(tmp_path),
         "--steps",
         "2",
-        "--resolution",
+        "--model.resolution",
         "16",
-        "--block-out-channels",
+        "--model.block-out-channels",
         "8,16",
         "--ckpt-every",
         "100",
     ]
     result = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stderr[-3000:]
-    history = json.loads((tmp_path / "latest" / "history.json").read_text())
-    assert [h[0] for h in history] == [1, 2]
-    assert (tmp_path / "latest" / "model" / "diffusion_pytorch_model.safetensors").is_file()
+    folder = latest_checkpoint(tmp_path)
+    assert [h["step"] for h in read_trainer_state(folder)["history"]] == [1, 2]
+    assert list((folder / "model").glob("*.safetensors"))
