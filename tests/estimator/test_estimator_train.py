@@ -11,6 +11,7 @@ import torch.nn.functional as F
 from safetensors.torch import load_file
 
 from estimator import SVBRDFEstimator, estimator_loss
+from estimator.config import TRAINING_DEFAULTS
 from estimator.losses import NORMAL_MSE_SCALE
 from estimator.train import EstimatorModelConfig, StepBatchSampler, TrainConfig, main, parse_args, select_views
 from materials.dataset import TRAIN_SEEDS, GroupConfig, RenderedGroups
@@ -168,8 +169,10 @@ def test_parse_args_builds_the_dataclass():
     assert cfg.steps == 7 and cfg.size == 48 and cfg.resume is False and cfg.num_threads == 1
     assert cfg.model.base_channels == 8 and cfg.model.channel_mults == (1, 2, 4)
     assert cfg.source_size == 96
-    # The default architecture is the model's own (its signature is the only copy).
-    assert parse_args([]).model == config_of(EstimatorModelConfig, SVBRDFEstimator())
+    # The default architecture is the model's own (its signature is the only copy), with
+    # what a new run builds on top (TRAINING_DEFAULTS: the shading branch).
+    assert parse_args([]).model == config_of(EstimatorModelConfig, SVBRDFEstimator(**TRAINING_DEFAULTS))
+    assert TRAINING_DEFAULTS == {"shading_channels": 16}
 
 
 def test_init_from_starts_at_the_saved_weights(tmp_path):
