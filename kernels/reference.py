@@ -71,7 +71,7 @@ def render_rtol(dtype: torch.dtype, roughness_min: float) -> float:
 
     Each term is relative to the element's value or to a factor at most ~1 of it, hence
     the bound against the largest value. Worst cases rarely align: measured float32
-    errors against float64 are 10-30x below it (kernels/DESIGN.md). Examples (float32):
+    errors against float64 are 10-80x below it (kernels/DESIGN.md). Examples (float32):
     1.4e-4 at roughness 0.15, 3.1e-4 at the 0.0993 floor.
     """
     alpha = roughness_min * roughness_min
