@@ -14,9 +14,14 @@ us = u * intensity * s, D v = D * vis, w = 2^((a v.h + b) v.h)):
     dL/d rho_d = us (1 - F0) (n.l) / pi
     dL/d F0    = us (-rho_d / pi + (1 - w) D v) (n.l)
     dL/d(D v)  = (n.l) sum_c us_c F_c
-    dD/d(n.h)  = -4 a2 (n.h) (a2 - 1) / (pi d^3),  dD/d alpha = 2 alpha (d - 2 a2 (n.h)^2) / (pi d^3)
+    dD/dn      = -2 a2 / (pi d^3) dd/dn,  dd/dn = 2 (a2 - 1) (n.h) h + 2 |h|^2 n
+    dD/d alpha = 2 alpha (|n x h|^2 - a2 (n.h)^2) / (pi d^3)
     dvis/d(n.l) = -vis (1 - k) / A,  dvis/dk = -vis ((1 - n.l) / A + (1 - n.v) / B)
-    with d = (n.h)^2 (a2 - 1) + 1, A = (n.l)(1 - k) + k, B = (n.v)(1 - k) + k, k = alpha / 2.
+    with d = a2 (n.h)^2 + |n x h|^2 (``brdf.ggx_denominator``), A = (n.l)(1 - k) + k,
+    B = (n.v)(1 - k) + k, k = alpha / 2. The |h|^2 n term of dd/dn (from |n x h|^2) is
+    along n, so the normalisation's projection (``normalize_grad``) removes it up to the
+    1e-12 epsilon; it is kept so that the gradient is that of what the forward computes.
+    Where n.h <= 0, d = 1 and D passes no gradient.
 
 Clamped dot products and the roughness floor pass gradient where the input is at or
 above the bound, as torch's ``clamp_min`` does (``kernels.reference``).
@@ -88,11 +93,12 @@ def build_brdf_grad(F) -> SimpleNamespace:
         ndl = wp.max(ndl_raw, F(0.0))
         ndv = wp.max(ndv_raw, F(0.0))
         ndh = wp.max(ndh_raw, F(0.0))
+        sin2 = brdf.ggx_sin2(n, h, ndh_raw)
         r = wp.max(rough, rough_floor)
         alpha = r * r
         k = alpha * F(0.5)
         a2 = alpha * alpha
-        dd = ndh * ndh * (a2 - F(1.0)) + F(1.0)
+        dd = brdf.ggx_denominator(ndh, sin2, a2)
         d = a2 / (F(PI) * dd * dd)
         one = V3(F(1.0), F(1.0), F(1.0))
         fr = f0 + (one - f0) * w
@@ -128,12 +134,17 @@ def build_brdf_grad(F) -> SimpleNamespace:
         g_ndl = (wp.dot(us, diffuse + fr * dv) - g_vis_vis * (F(1.0) - k) * inv_a) * pass_mask(ndl_raw)
         g_ndv = -g_vis_vis * (F(1.0) - k) * inv_b * pass_mask(ndv_raw)
         inv_dd3 = F(1.0) / (F(PI) * dd * dd * dd)
-        g_ndh = g_d * (F(-4.0) * a2 * ndh * (a2 - F(1.0)) * inv_dd3) * pass_mask(ndh_raw)
-        g_alpha = g_d * F(2.0) * alpha * (dd - F(2.0) * a2 * ndh * ndh) * inv_dd3
+        # dD/dd = -2 a2 / (pi d^3), times the two parts of dd/dn (docstring); zero where
+        # n.h <= 0 (d = 1 there).
+        g_dd = g_d * F(-2.0) * a2 * inv_dd3 * wp.where(ndh_raw > F(0.0), F(1.0), F(0.0))
+        g_ndh = g_dd * F(2.0) * ndh * (a2 - F(1.0))
+        g_radial = g_dd * F(2.0) * wp.dot(h, h)
+        # d - 2 a2 (n.h)^2 written as |n x h|^2 - a2 (n.h)^2: no cancellation against 1.
+        g_alpha = g_d * F(2.0) * alpha * (sin2 - a2 * ndh * ndh) * inv_dd3
         g_alpha -= g_vis_vis * ((F(1.0) - ndl) * inv_a + (F(1.0) - ndv) * inv_b) * F(0.5)
         g_rough = g_alpha * F(2.0) * r * wp.where(rough >= rough_floor, F(1.0), F(0.0))
         # (v.h, hence w, depends on the positions only: no map gradient flows through it.)
-        g_n = l * g_ndl + v * g_ndv + h * g_ndh
+        g_n = l * g_ndl + v * g_ndv + h * g_ndh + n * g_radial
         return radiance, g_rho, g_f0, g_rough, g_n
 
     @wp.func

@@ -26,9 +26,56 @@ __all__ = [
     "mse_loss",
     "rendering_loss",
     "LOG_EPS",
+    "UNIT_ROUNDOFF",
+    "render_rtol",
 ]
 
 from kernels.loss import LOG_EPS
+
+#: Unit roundoff u (half an ulp of 1: the largest relative error of one correctly rounded
+#: operation) of the dtypes the kernels are built for.
+UNIT_ROUNDOFF = {torch.float32: 2.0**-24, torch.float64: 2.0**-53}
+#: Constants of the forward error model of ``render_rtol`` (derivation in its docstring):
+#: RENDER_ERR_C1 / alpha counts the ulps that the GGX peak and the visibility term amplify,
+#: RENDER_ERR_C0 the ulps of everything else on the path.
+RENDER_ERR_C0 = 100.0
+RENDER_ERR_C1 = 50.0
+
+
+def render_rtol(dtype: torch.dtype, roughness_min: float) -> float:
+    """Bound on ``max |render - exact| / max |exact|`` for ``render`` (``kernels.render``
+    or this module's twin) evaluated in ``dtype`` on maps whose roughness, after the
+    preset's floor clamp, is >= ``roughness_min``; "exact" is the same formula evaluated
+    in exact arithmetic on the same inputs (in practice: in float64, whose own error is
+    this bound with u = 2^-53, ~1e-9 of the float32 one).
+
+    Returns ``u (RENDER_ERR_C0 + RENDER_ERR_C1 / alpha_min)``, alpha_min = roughness_min^2,
+    u = ``UNIT_ROUNDOFF[dtype]``. Derivation (worst case per operation, first order in u):
+
+    - directions: l and v (a difference of positions, three squares summed, a square
+      root, a division) are each within ~4u of their exact direction, h = normalize(l + v)
+      within ~8u, n within ~4u: the angle theta between n and h is within 12u.
+    - GGX D = alpha^2 / (pi d^2), d = alpha^2 cos^2 + sin^2: d ln d / d theta =
+      2 t (1 - alpha^2) / (alpha^2 + t^2) (t = tan theta) is at most 1 / alpha (at
+      t = alpha), so |d ln D / d theta| <= 2 / alpha: 24u / alpha relative in D.
+    - evaluating d (``kernels.brdf``'s docstring): each component of n x h within ~3u, so
+      |n x h|^2 = s^2 within 2 sqrt(3) 3u s ~ 10.4 s u, against d >= 2 alpha s: 5.2u / alpha
+      relative in d, 10.4u / alpha in D = 1 / d^2.
+    - visibility: (n.l) / A, A = (n.l)(1 - k) + k, has derivative k / A^2 <= 2 / alpha in
+      n.l, which is within ~4u: 8u / alpha on a factor at most ~1; 1 / B likewise in n.v:
+      16u / alpha together. Sum of the four: ~50u / alpha = RENDER_ERR_C1 / alpha.
+    - everything else relative to the value: the Fresnel weight 2^x, x in [-12.5, 0],
+      x within |dx / d(v.h)| 4u + 3u |x| <= 18.1 * 4u + 37.5u ~ 110u, i.e. ln 2 * 110u ~
+      76u relative; ~20 more products, quotients and sums on the path, ~1u each: 100u in
+      all (RENDER_ERR_C0).
+
+    Each term is relative to the element's value or to a factor at most ~1 of it, hence
+    the bound against the largest value. Worst cases rarely align: measured float32
+    errors against float64 are 10-80x below it (kernels/DESIGN.md). Examples (float32):
+    1.4e-4 at roughness 0.15, 3.1e-4 at the 0.0993 floor.
+    """
+    alpha = roughness_min * roughness_min
+    return UNIT_ROUNDOFF[dtype] * (RENDER_ERR_C0 + RENDER_ERR_C1 / alpha)
 
 
 def _normalize(x: torch.Tensor, dim: int) -> torch.Tensor:
@@ -57,13 +104,18 @@ def cook_torrance(n, l, v, rho_d, f0, rough, rough_floor: float) -> torch.Tensor
     h = _normalize(l + v, -3)
     n_dot_l = (n * l).sum(-3, keepdim=True).clamp_min(0)
     n_dot_v = (n * v).sum(-3, keepdim=True).clamp_min(0)
-    n_dot_h = (n * h).sum(-3, keepdim=True).clamp_min(0)
+    n_dot_h_raw = (n * h).sum(-3, keepdim=True)
+    n_dot_h = n_dot_h_raw.clamp_min(0)
     v_dot_h = (v * h).sum(-3, keepdim=True).clamp_min(0)
     r = rough.clamp_min(rough_floor)
     alpha = r * r
     k = alpha * 0.5
     a2 = alpha * alpha
-    d = a2 / (math.pi * (n_dot_h * n_dot_h * (a2 - 1) + 1) ** 2)
+    # (n.h)^2 (a2 - 1) + 1 as a2 (n.h)^2 + |n x h|^2: no cancellation near the highlight
+    # (kernels.brdf's docstring); 1 where n.h <= 0, the clamped form's value there.
+    nxh = torch.linalg.cross(*torch.broadcast_tensors(n, h), dim=-3)
+    sin2 = torch.where(n_dot_h_raw > 0, (nxh * nxh).sum(-3, keepdim=True), 1.0)
+    d = a2 / (math.pi * (a2 * n_dot_h * n_dot_h + sin2) ** 2)
     fr = f0 + (1 - f0) * torch.exp2((FRESNEL_A * v_dot_h + FRESNEL_B) * v_dot_h)
     vis = 0.25 / ((n_dot_l * (1 - k) + k) * (n_dot_v * (1 - k) + k))
     return (rho_d * (1 - f0) / math.pi + fr * d * vis) * n_dot_l

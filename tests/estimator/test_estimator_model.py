@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import copy
+
 import pytest
 import torch
 
@@ -63,17 +65,32 @@ def test_shared_positions_broadcast(tiny_model, random_views):
     torch.testing.assert_close(a, b)
 
 
+#: Outputs of the float32 tiny model against the same model in float64, on random_views'
+#: inputs (maps in [0, 1]): measured 2.4e-6 (AMD EPYC, AVX-512); the 10-20 float32
+#: convolution layers' rounding depends on the kernels oneDNN picks (by CPU, and by the
+#: weights' memory alignment, so even a reloaded copy on the same CPU differs from the
+#: original by ~8e-7). 40x the measurement.
+FLOAT32_OUTPUT_ATOL = 1e-4
+
+
 def test_save_pretrained_round_trip(tiny_model, tmp_path, random_views):
+    """The state dict survives bit for bit; the outputs are those of the same network, to
+    float32 rounding (not bit-equal: the convolution code path may change with alignment)."""
     tiny_model.save_pretrained(tmp_path / "m")
     files = {p.name for p in (tmp_path / "m").iterdir()}
     assert "config.json" in files and any(f.endswith(".safetensors") for f in files)
     loaded = SVBRDFEstimator.from_pretrained(tmp_path / "m").eval()
     assert loaded.arch == tiny_model.arch
+    saved, restored = tiny_model.state_dict(), loaded.state_dict()
+    assert list(restored) == list(saved)
+    for name, tensor in saved.items():
+        assert restored[name].dtype == tensor.dtype and torch.equal(restored[name], tensor), name
     images, light, camera = random_views(1, 3, seed=6)
     with torch.no_grad():
-        torch.testing.assert_close(
-            loaded(images, light, camera).stacked(), tiny_model(images, light, camera).stacked(), atol=0, rtol=0
-        )
+        exact = copy.deepcopy(tiny_model).double()(images.double(), light.double(), camera.double()).stacked()
+        for model in (tiny_model, loaded):
+            out = model(images, light, camera).stacked()
+            torch.testing.assert_close(out.double(), exact, rtol=0, atol=FLOAT32_OUTPUT_ATOL)
 
 
 def test_default_size_budget():

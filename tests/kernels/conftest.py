@@ -16,6 +16,11 @@ import math
 import pytest
 import torch
 
+import kernels
+from kernels import reference
+from kernels.presets import get_preset
+from kernels.reference import UNIT_ROUNDOFF, render_rtol
+
 #: Devices the forward/VJP tests run on: the same tests run on CUDA when it is present.
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 DTYPES = [torch.float32, torch.float64]
@@ -23,6 +28,15 @@ DTYPES = [torch.float32, torch.float64]
 MAX_NORMAL_SLOPE = 0.9
 #: Roughness range of the random maps: above the 0.0993 floor, so the clamp is never hit.
 ROUGHNESS_RANGE = (0.15, 1.0)
+#: VJP error model, relative to the largest gradient entry: ``VJP_ERR_SCALE`` times the
+#: forward's ``render_rtol`` (a derivative of D = alpha^2 / (pi d^2) carries d^3, 1.5x the
+#: forward's relative sensitivity to d, plus the cotangent products), plus n^1.5 u for a
+#: float32 sum of n terms: recursive summation errs by <= (n - 1) u sum |t_i|, and with
+#: random-sign cotangents sum |t_i| ~ sqrt(n) |sum t_i|.
+VJP_ERR_SCALE = 2.0
+#: Kernel and twin in the same dtype are each within the bound of the exact value, so
+#: they are within twice the bound of each other.
+BOTH_SIDES = 2.0
 #: Cosine-similarity floor between kernel and reference gradients ("not silently zero",
 #: gsplat's habit): any real disagreement shows up far below it.
 GRAD_COSINE_MIN = 0.999
@@ -90,6 +104,67 @@ def _assert_close_to_max(actual: torch.Tensor, expected: torch.Tensor, rtol: flo
     )
 
 
+def _roughness_min(roughness: torch.Tensor, preset: str = "dgrsise", **overrides) -> float:
+    """The smallest roughness the BRDF sees: the map's minimum, clamped at the floor."""
+    floor = get_preset(preset).with_overrides(**overrides).roughness_floor
+    return max(float(roughness.detach().min()), floor)
+
+
+def _assert_render_accurate(out: torch.Tensor, maps, light, camera, what: str = "", **kwargs) -> None:
+    """``out`` = ``kernels.render(*maps, light, camera, **kwargs)`` is the formula's value
+    within ``render_rtol``. float64: against the float64 twin, within BOTH_SIDES times the
+    bound. float32: the kernel's output and the float32 twin's, each against the float64
+    twin on the same (float32-valued) inputs, within the float32 bound; so a formula that
+    is ill-conditioned in float32 fails even when kernel and twin share its error."""
+    rtol = render_rtol(out.dtype, _roughness_min(maps[2], **kwargs))
+    inputs = [*maps, light, camera]
+    if out.dtype == torch.float64:
+        _assert_close_to_max(out, reference.render(*inputs, **kwargs), BOTH_SIDES * rtol, f"{what} float64")
+        return
+    exact = reference.render(*(t.detach().double() for t in inputs), **kwargs)
+    _assert_close_to_max(out.double(), exact, rtol, f"{what} kernel {out.dtype} vs float64")
+    twin = reference.render(*inputs, **kwargs)
+    _assert_close_to_max(twin.double(), exact, rtol, f"{what} reference {out.dtype} vs float64")
+
+
+def _vjp_rtol(dtype: torch.dtype, roughness_min: float, n_sum: int) -> float:
+    """Bound on max |VJP error| / max |VJP| of a render evaluated in ``dtype`` whose longest
+    gradient sum has ``n_sum`` terms (``VJP_ERR_SCALE``)."""
+    return VJP_ERR_SCALE * render_rtol(dtype, roughness_min) + UNIT_ROUNDOFF[dtype] * n_sum**1.5
+
+
+#: Names of ``kernels.render``'s differentiable inputs, in order.
+RENDER_INPUTS = ("diffuse", "normal", "roughness", "specular", "light_pos", "camera_pos")
+
+
+def _assert_vjp_accurate(inputs, cot: torch.Tensor, n_sum: int, **kwargs) -> None:
+    """VJPs of ``kernels.render(*inputs, **kwargs)`` with respect to the inputs that
+    require grad, against the twin's, as ``_assert_render_accurate`` does for values, with
+    the bound ``_vjp_rtol(dtype, roughness_min, n_sum)``; and each gradient is alive.
+    ``inputs``: the six ``RENDER_INPUTS``; ``n_sum``: the longest sum a gradient entry is
+    (lights for the maps, pixels, lights and batch items for broadcast positions)."""
+    wanted = [i for i, t in enumerate(inputs) if t.requires_grad]
+    dtype = inputs[0].dtype
+    rtol = _vjp_rtol(dtype, _roughness_min(inputs[2], **kwargs), n_sum)
+
+    def grads(render, xs, c):
+        return torch.autograd.grad(render(*xs, **kwargs), [xs[i] for i in wanted], c)
+
+    got = grads(kernels.render, inputs, cot)
+    twin = grads(reference.render, inputs, cot)
+    if dtype == torch.float64:
+        for i, g, t in zip(wanted, got, twin):
+            _assert_close_to_max(g, t, BOTH_SIDES * rtol, f"{RENDER_INPUTS[i]} float64")
+            _assert_grad_alive(g, t, RENDER_INPUTS[i])
+        return
+    x64 = [t.detach().double().requires_grad_(t.requires_grad) for t in inputs]
+    exact = grads(reference.render, x64, cot.double())
+    for i, g, t, e in zip(wanted, got, twin, exact):
+        _assert_close_to_max(g.double(), e, rtol, f"{RENDER_INPUTS[i]} kernel {dtype} vs float64")
+        _assert_close_to_max(t.double(), e, rtol, f"{RENDER_INPUTS[i]} reference {dtype} vs float64")
+        _assert_grad_alive(g, e, RENDER_INPUTS[i])
+
+
 def _assert_grad_alive(grad: torch.Tensor, ref: torch.Tensor, what: str = "") -> None:
     """The gradient is not silently zero and points where the reference's does."""
     g, r = grad.detach().double().flatten(), ref.detach().double().flatten()
@@ -137,6 +212,32 @@ def make_positions():
 def assert_close_to_max():
     """``assert_close_to_max(actual, expected, rtol, what="")``: max error <= rtol * max |expected|."""
     return _assert_close_to_max
+
+
+@pytest.fixture
+def assert_render_accurate():
+    """``assert_render_accurate(out, maps, light, camera, what="", **render_kwargs)``:
+    the render is within ``render_rtol`` of the formula's value (float64 evaluation)."""
+    return _assert_render_accurate
+
+
+@pytest.fixture
+def assert_vjp_accurate():
+    """``assert_vjp_accurate(inputs, cot, n_sum, **render_kwargs)``: render VJPs within
+    ``_vjp_rtol`` of the formula's (float64 evaluation), and alive."""
+    return _assert_vjp_accurate
+
+
+@pytest.fixture
+def roughness_min():
+    """``roughness_min(roughness, preset="dgrsise", **overrides)``: smallest roughness after the floor."""
+    return _roughness_min
+
+
+@pytest.fixture
+def vjp_rtol():
+    """``vjp_rtol(dtype, roughness_min, n_sum)``: the VJP error bound (``VJP_ERR_SCALE``)."""
+    return _vjp_rtol
 
 
 @pytest.fixture
