@@ -43,16 +43,7 @@ PNG_EXCEPTIONS = {"results/relight_eval/relight_eval.png": 500 * 1024}
 MACHINE_PATH = re.compile(r"(?<![\w.$~/-])/(?:work|home|Users|root|mnt)/")
 #: Files that still hold machine paths, each owned by another work package of issue 17
 #: that rewrites it; an entry that no longer matches fails (remove it then).
-MACHINE_PATH_PENDING = {
-    # Trainers' default --ckpt-dir (issue 17, "Trainers' help"): the training-stack package.
-    "estimator/train.py",
-    "relight/bieron/train.py",
-    # Training records' commands (`--ckpt-dir` under the machine's checkpoint root): the
-    # weights package, which moves and converts the weights with their records.
-    "weights/estimator/TRAINING.md",
-    "weights/bieron/TRAINING.md",
-    "weights/diffusion/TRAINING.md",
-}
+MACHINE_PATH_PENDING: set[str] = set()  # none left since the 0.2.0 merges
 #: Byproducts never committed (.gitignore), skipped by the file-system fallback.
 IGNORED_PARTS = {".git", ".venv", "__pycache__", ".pytest_cache", ".ruff_cache", ".mypy_cache", "runs", "out", "build"}
 BINARY_SUFFIXES = {".png", ".jpg", ".exr", ".safetensors", ".pt", ".bin", ".npz"}

@@ -303,8 +303,8 @@ def test_worley_wraps_exactly():
     a = worley(torch.Generator().manual_seed(1), x, y, 7)
     b = worley(torch.Generator().manual_seed(1), x + 1.0, y - 2.0, 7)
     assert torch.allclose(a.f1, b.f1, atol=1e-5) and torch.allclose(a.f2, b.f2, atol=1e-5)
-    assert float((a.index != b.index).float().mean()) < 1e-3
-    assert int(a.index.min()) >= 0 and int(a.index.max()) < 49
+    assert float((a.cell != b.cell).float().mean()) < 1e-3
+    assert int(a.cell.min()) >= 0 and int(a.cell.max()) < 49
     assert bool((a.f2 >= a.f1).all())
 
 
