@@ -113,7 +113,10 @@ class StrictLoadingMixin:
     @classmethod
     def from_pretrained(cls, pretrained_model_name_or_path, **kwargs):
         want_info = kwargs.pop("output_loading_info", False)
-        model, info = super().from_pretrained(pretrained_model_name_or_path, output_loading_info=True, **kwargs)
+        # The mixin comes before ModelMixin in the subclass's bases, which provides it.
+        model, info = super().from_pretrained(  # type: ignore[misc]
+            pretrained_model_name_or_path, output_loading_info=True, **kwargs
+        )
         check_loading_info(
             info,
             pretrained_model_name_or_path,

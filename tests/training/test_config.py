@@ -35,7 +35,7 @@ class Net:
         scale: an optional scale (none: off).
 
     Example:
-        >>> Net()
+        >>> Net()  # doctest: +SKIP
     """
 
     def __init__(
