@@ -89,7 +89,7 @@ def test_join_negative_values_leaves_everything_else_alone():
 def inputs(tmp_path):
     """Cheap real inputs for every command that writes an output folder."""
     photo = tmp_path / "photo.png"
-    write_png(photo, np.full((16, 16, 3), 0.5, np.float32))
+    write_png(photo, np.full((64, 64, 3), 0.5, np.float32))  # read_photo's smallest side
     material = generate(0, size=16)
     sheet = tmp_path / "sheet.png"
     write_inria(sheet, material, torch.full((3, 16, 16), 0.5))

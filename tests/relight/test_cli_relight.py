@@ -5,15 +5,17 @@ import json
 
 import numpy as np
 import pytest
+import torch
 
 from matcap.cli import main
-from materials.io import write_exr, write_png
+from materials.io import read_capture, read_exr, write_exr, write_png
 
 
 @pytest.fixture()
 def photo_png(tmp_path):
+    # 64 px: the smallest side materials.io.read_photo accepts (MIN_PHOTO_SIDE).
     path = tmp_path / "photo.png"
-    write_png(path, np.random.default_rng(0).random((16, 16, 3)).astype(np.float32))
+    write_png(path, np.random.default_rng(0).random((64, 64, 3)).astype(np.float32))
     return path
 
 
@@ -35,6 +37,9 @@ def test_generate_writes_one_pair_per_light(tmp_path, photo_png, tiny_checkpoint
     assert main(argv) == 0
     info = json.loads((out / "relit.json").read_text())
     assert len(info["lights"]) == 2
+    # capture/: the photo as view 0, then one view per light, in our capture format.
+    capture = read_capture(out / "capture")
+    assert capture.num_views == 3 and torch.equal(capture.light_pos[0], capture.camera_pos[0])
     assert sorted(p.name for p in out.glob("relit_*")) == [
         "relit_00.exr",
         "relit_00.png",
@@ -45,9 +50,12 @@ def test_generate_writes_one_pair_per_light(tmp_path, photo_png, tiny_checkpoint
 
 def test_generate_default_lights_from_exr(tmp_path):
     exr = tmp_path / "photo.exr"
-    write_exr(exr, np.full((8, 8, 3), 0.3, dtype=np.float32))
+    write_exr(exr, np.full((64, 80, 3), 0.3, dtype=np.float32))
     assert main(["generate", str(exr), "--model", "lambertian", "--out", str(tmp_path / "g")]) == 0
-    assert len(list((tmp_path / "g").glob("relit_*.exr"))) == 7
+    relit = sorted((tmp_path / "g").glob("relit_*.exr"))
+    assert len(relit) == 7
+    # Non-square photo: padded to a square for the model, written back on its own grid.
+    assert read_exr(relit[0]).shape == (64, 80, 3)
 
 
 @pytest.mark.parametrize(
@@ -66,14 +74,19 @@ def test_generate_bad_input(tmp_path, photo_png, capsys, extra, message):
     assert not out.exists()
 
 
-def test_generate_rejects_grey_and_unknown_files(tmp_path, capsys):
+def test_generate_reads_photos_with_read_photo(tmp_path, capsys):
+    # Grey photos are copied to R, G, B (materials.io.read_photo); a file that is no
+    # photo, or one below 64 px, is one error line.
     grey = tmp_path / "grey.png"
-    write_png(grey, np.zeros((8, 8, 1), dtype=np.float32))
-    assert main(["generate", str(grey), "--model", "input", "--out", str(tmp_path / "g")]) == 2
-    assert "expected 3 (RGB)" in capsys.readouterr().err
+    write_png(grey, np.full((64, 64, 1), 0.5, dtype=np.float32))
+    assert main(["generate", str(grey), "--model", "input", "--out", str(tmp_path / "g")]) == 0
     (tmp_path / "photo.jpg").write_bytes(b"x")
-    assert main(["generate", str(tmp_path / "photo.jpg"), "--out", str(tmp_path / "g")]) == 2
-    assert ".png (tone-mapped) or .exr" in capsys.readouterr().err
+    assert main(["generate", str(tmp_path / "photo.jpg"), "--out", str(tmp_path / "g2")]) == 2
+    assert "not a PNG, JPEG or EXR file" in capsys.readouterr().err
+    write_png(tmp_path / "small.png", np.full((16, 16, 3), 0.5, dtype=np.float32))
+    assert main(["generate", str(tmp_path / "small.png"), "--model", "input", "--out", str(tmp_path / "g3")]) == 2
+    assert "at least 64 pixels" in capsys.readouterr().err
+    assert not (tmp_path / "g2").exists() and not (tmp_path / "g3").exists()
 
 
 def test_eval_relighting_cli(tmp_path, tiny_checkpoint, capsys):
@@ -118,14 +131,15 @@ def test_old_eval_targets_still_work_with_a_deprecation_note(tmp_path, capsys):
         assert build_parser().parse_args(["eval", target, "--out", str(tmp_path / "x")]).run is run_estimator
 
 
-@pytest.mark.parametrize(
-    "command, text", [(["generate"], "(default {})"), (["eval", "relighting"], "{} for diffusion")]
-)
-def test_steps_help_names_the_pipeline_default(capsys, command, text):
+def test_steps_help_names_the_default(capsys):
     # The help texts are written without importing the diffusion package (it would slow
-    # every command); this keeps the number in them from drifting from the pipeline's.
+    # every command); this keeps the numbers in them from drifting from the code's.
+    from matcap.capture import DEFAULT_RELIGHT_STEPS
     from relight.diffusion import DEFAULT_STEPS
 
     with pytest.raises(SystemExit):
-        main([*command, "--help"])
-    assert text.format(DEFAULT_STEPS) in " ".join(capsys.readouterr().out.split())
+        main(["generate", "--help"])
+    assert f"(default {DEFAULT_RELIGHT_STEPS}, its best measured setting)" in " ".join(capsys.readouterr().out.split())
+    with pytest.raises(SystemExit):
+        main(["eval", "relighting", "--help"])
+    assert f"{DEFAULT_STEPS} for diffusion" in " ".join(capsys.readouterr().out.split())

@@ -102,6 +102,6 @@ def test_cli_generate_with_the_shipped_model(tmp_path):
     from matcap.cli import main
     from materials.io import write_png
 
-    write_png(tmp_path / "p.png", np.full((16, 16, 3), 0.5, dtype=np.float32))
-    assert main(["generate", str(tmp_path / "p.png"), "--out", str(tmp_path / "g")]) == 0
+    write_png(tmp_path / "p.png", np.full((64, 64, 3), 0.5, dtype=np.float32))
+    assert main(["generate", str(tmp_path / "p.png"), "--model", "bieron", "--out", str(tmp_path / "g")]) == 0
     assert len(list(Path(tmp_path / "g").glob("relit_*.png"))) == 7

@@ -298,7 +298,8 @@ def test_sampling_options_reach_the_pipeline(tiny_model, tmp_path, capsys, pipel
     calls = pipeline_calls
     tiny_model.save_pretrained(tmp_path / "m")
     photo = tmp_path / "photo.exr"
-    write_exr(photo, np.random.default_rng(0).random((16, 16, 3)).astype(np.float32))
+    # 64 px: read_photo's smallest side; generate area-downsamples it to the model's size.
+    write_exr(photo, np.random.default_rng(0).random((64, 64, 3)).astype(np.float32))
     base = ["generate", str(photo), "--light", "1,1,4", "--out"]
     diffusion = ["--model", "diffusion", "--checkpoint", str(tmp_path / "m")]
     assert main([*base, str(tmp_path / "a"), *diffusion, "--steps", "2", "--samples", "3"]) == 0

@@ -1,0 +1,408 @@
+"""``matcap.capture.CapturePipeline`` and ``relight capture``: the steps end to end with a
+tiny random estimator and the analytic relighters (fast), one run with the shipped
+diffusion relighter, the round trip through the written capture folder, mapping back to
+the photo's pixels, EXIF orientation, ``--relit 0`` against the steps called by hand,
+bad input, and the glTF export re-read."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+
+import numpy as np
+import OpenEXR
+import pytest
+import torch
+from PIL import ExifTags, Image
+
+import kernels
+from estimator.config import TINY_TEST_CONFIG
+from estimator.model import SVBRDFEstimator
+from matcap.capture import (
+    MAX_SIDE,
+    PROVENANCE_JSON,
+    WORKING_SIZE,
+    CaptureConfig,
+    CapturePipeline,
+    area_downsample,
+    builtin_photo,
+    falloff_factor,
+    refine_full_resolution,
+    refine_memory_bytes,
+)
+from matcap.cli import main
+from materials.frame import prepare_photo
+from materials.io import read_capture, read_exr, read_glb, write_png
+from materials.io.gltf import SPECULAR_EXTENSION
+from materials.lights import EVAL_LIGHTS
+from relight.interface import get_relighter
+
+#: 8-bit capture PNGs: half a code step in display space, y = x^(1/2.2), is at most
+#: 2.2 * 0.5 / 255 = 0.0043 in linear radiance for values in [0, 1] (dx/dy = 2.2 y^1.2 <= 2.2).
+PNG_LINEAR_TOL = 2.2 * 0.5 / 255 + 1e-6
+#: float32 round-off of the same computation done twice in a different order (the
+#: pipeline vs the steps by hand): renders and sums of ~1e4 terms, relative ~1e-6.
+SAME_MATH_TOL = 1e-5
+
+
+@pytest.fixture(scope="module")
+def tiny_estimator():
+    torch.manual_seed(0)
+    return SVBRDFEstimator(**TINY_TEST_CONFIG.to_dict()).eval()
+
+
+@pytest.fixture(scope="module")
+def estimator_folder(tmp_path_factory, tiny_estimator):
+    folder = tmp_path_factory.mktemp("est") / "tiny"
+    tiny_estimator.save_pretrained(folder)
+    return folder
+
+
+def smooth_photo(h: int, w: int, seed: int = 0) -> torch.Tensor:
+    """``[3, h, w]`` linear radiance in (0.05, 0.6): smooth random colour blobs."""
+    g = torch.Generator().manual_seed(seed)
+    coarse = torch.rand(1, 3, 4, 4, generator=g)
+    return 0.05 + 0.55 * torch.nn.functional.interpolate(coarse, size=(h, w), mode="bilinear")[0]
+
+
+def pipeline(estimator, relighter="lambertian", **config) -> CapturePipeline:
+    config.setdefault("refine_steps", 3)
+    return CapturePipeline(get_relighter(relighter) if relighter else None, estimator, config=CaptureConfig(**config))
+
+
+# ---------------------------------------------------------------------- the steps
+def test_pipeline_end_to_end_on_a_non_square_photo(tiny_estimator, tmp_path):
+    photo = smooth_photo(100, 70)
+    out = pipeline(tiny_estimator)(photo)
+    k = len(EVAL_LIGHTS)
+    # Maps, re-renders and their channels on the photo's grid; the networks at 64 px.
+    assert out.material.shape == (100, 70) and out.material.diffuse.shape == (3, 100, 70)
+    assert out.renders.shape == (1 + k, 3, 100, 70) and bool(torch.isfinite(out.renders).all())
+    assert out.relit.shape == (k, 3, WORKING_SIZE, WORKING_SIZE) and out.estimate.shape == (64, 64)
+    assert out.capture.num_views == 1 + k and out.capture.shape == (64, 64)
+    assert torch.equal(out.capture.light_pos[0], out.capture.camera_pos[0])  # view 0: the flash
+    assert out.frame.size == (128, 128) and out.frame.photo_size == (100, 70)
+    assert out.confidence is None  # one sample
+    assert len(out.refine_history) == 3
+    out.material.validate()
+    prov = out.provenance
+    assert list(prov["timings_s"]) == [
+        "1 check inputs",
+        "2 prepare photo",
+        "3 relight",
+        "4 capture",
+        "5 estimate",
+        "6 refine",
+        "7 maps to photo",
+        "8 re-render",
+    ]
+    assert prov["frame"]["photo_size"] == [100, 70] and prov["photo"]["size"] == [100, 70]
+    assert prov["settings"]["relit"] == k and prov["versions"]["dgrsise"]
+    assert len(prov["weights"]["estimator"]["config_sha256"]) == 64
+    json.dumps(prov)  # serialisable
+    # The folder: everything there, atomically, and marked.
+    out.save(tmp_path / "o")
+    names = {p.name for p in (tmp_path / "o").iterdir()}
+    assert names == {"material", "renders", "relit", "capture", "preview.png", PROVENANCE_JSON}
+    assert read_exr(tmp_path / "o" / "material" / "diffuse.exr").shape == (100, 70, 3)
+    assert len(list((tmp_path / "o" / "renders").glob("view_*.exr"))) == 1 + k
+
+
+def test_refinement_decreases_the_loss_and_masks_the_padding(tiny_estimator):
+    photo = smooth_photo(64, 40)
+    image, frame = prepare_photo(photo, multiple=64)
+    mask = frame.valid_mask()
+    camera = torch.tensor([0.0, 0.0, 4.0])
+    init = tiny_estimator(area_downsample(image, 64)[None, None], camera[None, None], camera[None, None])
+    garbage = image.clone()
+    garbage[:, ~mask] = 1e3  # whatever the padding holds must not matter
+    runs = [
+        refine_full_resolution(init, target, mask, torch.zeros(0, 3, 64, 64), mask, camera[None], camera, steps=10)
+        for target in (image, garbage)
+    ]
+    assert runs[0].history[-1] < runs[0].history[0]
+    assert runs[0].history == pytest.approx(runs[1].history, rel=SAME_MATH_TOL)
+
+
+def test_relit_views_are_compared_at_their_resolution(tiny_estimator):
+    # A relit view the maps reproduce exactly (the render area-downsampled) has zero loss:
+    # the comparison is at the relit size, after rendering at full resolution.
+    photo = smooth_photo(128, 128)
+    camera = torch.tensor([0.0, 0.0, 4.83])
+    init = tiny_estimator(area_downsample(photo, 64)[None, None], camera[None, None], camera[None, None])
+    init = init.__class__(*(torch.nn.functional.interpolate(t, size=(128, 128)) for t in init.map_tensors()))
+    light = torch.tensor([[2.0, 2.0, 4.0]])
+    rendered = kernels.render(*init.map_tensors(), light[None], camera)[0]
+    relit = area_downsample(rendered, 64)
+    mask = torch.ones(128, 128, dtype=torch.bool)
+    small_mask = torch.ones(64, 64, dtype=torch.bool)
+    lights = torch.cat([camera[None], light])
+    result = refine_full_resolution(
+        init, photo, mask, relit, small_mask, lights, camera, photo_weight=0.0, relit_weight=1.0, steps=1
+    )
+    assert result.history[0] < 1e-6
+
+
+def test_relit_zero_equals_the_estimator_and_refinement_by_hand(tiny_estimator):
+    photo = smooth_photo(96, 80, seed=3)
+    config = CaptureConfig(relit=0, refine_steps=4, falloff="none")
+    out = CapturePipeline(None, tiny_estimator, config=config)(photo)
+    # By hand: pad to a multiple of 64, the camera at 45 degrees over the photo's centre,
+    # the estimator on the 64 px photo, refinement against the photo, back to its grid.
+    image, frame = prepare_photo(photo, multiple=64)
+    h = (frame.photo_long_side / 2) / math.tan(math.radians(45.0) / 2)
+    x, y = frame.pixel_to_plane(torch.tensor(95 / 2), torch.tensor(79 / 2))
+    camera = torch.tensor([float(x), float(y), h])
+    with torch.no_grad():
+        estimate = tiny_estimator(area_downsample(image, 64)[None, None], camera[None, None], camera[None, None])
+    init = estimate.__class__(
+        *(torch.nn.functional.interpolate(t, size=frame.size, mode="bilinear") for t in estimate.map_tensors())
+    )
+    init = init.__class__(
+        init.diffuse, torch.nn.functional.normalize(init.normal, dim=1), init.roughness, init.specular
+    )
+    result = refine_full_resolution(
+        init, image, frame.valid_mask(), torch.zeros(0, 3, 64, 64), frame.valid_mask(), camera[None], camera, steps=4
+    )
+    by_hand = frame.material_to_photo(result.material[0])
+    assert out.refine_history == pytest.approx(result.history, rel=SAME_MATH_TOL)
+    for name, t in by_hand.maps().items():
+        assert torch.allclose(getattr(out.material, name), t, atol=SAME_MATH_TOL), name
+
+
+def test_maps_land_on_the_photo_pixels_they_came_from(tiny_estimator):
+    # One bright quadrant (top-right) in a non-square photo: after refinement against the
+    # photo alone, the diffuse map is brightest in that quadrant of the photo's grid.
+    photo = torch.full((3, 80, 120), 0.05)
+    photo[:, :40, 60:] = 0.5
+    out = pipeline(tiny_estimator, None, relit=0, refine_steps=60, refine_lr=0.1, falloff="none")(photo)
+    d = out.material.diffuse.mean(0)
+    quadrants = [d[:40, :60], d[:40, 60:], d[40:, :60], d[40:, 60:]]
+    means = [float(q.mean()) for q in quadrants]
+    # Clearly brightest (here about 2x; the dark quadrants differ by specular and normals).
+    assert means.index(max(means)) == 1 and means[1] > 1.5 * max(means[0], means[2], means[3])
+
+
+def test_samples_give_a_confidence_map_with_the_shipped_diffusion_relighter(tiny_estimator):
+    photo = builtin_photo(size=64)
+    config = CaptureConfig(relit=2, samples=2, refine_steps=1)
+    relighter = get_relighter("diffusion")
+    out = CapturePipeline(relighter, tiny_estimator, config=config)(photo)
+    assert out.relit.shape == (2, 3, 64, 64) and bool(torch.isfinite(out.relit).all())
+    assert out.confidence.shape == (1, 64, 64) and float(out.confidence.max()) > 0
+    assert out.provenance["weights"]["relighter"]["steps"] == 1
+    assert out.provenance["weights"]["relighter"]["config_sha256"]
+
+
+def test_a_deterministic_relighter_refuses_samples(tiny_estimator):
+    with pytest.raises(ValueError, match="deterministic"):
+        pipeline(tiny_estimator, samples=2)(smooth_photo(64, 64))
+
+
+# ---------------------------------------------------------------------- units, falloff
+def test_falloff_conventions_agree_with_the_renderer():
+    # A render with 1/d^2 at intensity pi h^2 equals the no-falloff render times the
+    # falloff factor, for the flash and for another light: the two conversions the
+    # pipeline makes (photo / factor, relit * factor) are exact for a renderer's scene.
+    from materials.procedural import generate
+
+    maps = [t[None] for t in generate(5, size=32).map_tensors()]
+    camera = torch.tensor([0.0, 0.0, 4.83])
+    lights = torch.tensor([[0.0, 0.0, 4.83], [2.0, -1.0, 4.0]])
+    plain = kernels.render(*maps, lights[None], camera)[0]
+    falloff = kernels.render(*maps, lights[None], camera, inverse_square=True, intensity=math.pi * 4.83**2)[0]
+    factor = falloff_factor(lights, 4.83, 32, 4.0)
+    assert torch.allclose(falloff, plain * factor, rtol=1e-4, atol=1e-6)
+    assert float(factor[0, 0, 15:17, 15:17].max()) == pytest.approx(1.0, abs=2e-3)  # ~1 under the flash
+
+
+def test_builtin_photo_is_an_8_bit_flash_render():
+    photo = builtin_photo("wood", size=64)
+    assert photo.size == (64, 64) and photo.format == "builtin" and photo.path == "builtin:wood"
+    codes = kernels.tonemap(photo.image) * 255
+    assert torch.allclose(codes, codes.round(), atol=1e-3)
+    with pytest.raises(ValueError, match="family"):
+        builtin_photo("nosuch")
+
+
+# ---------------------------------------------------------------------- sizes
+def test_size_guard_refuses_large_photos_and_downscales_on_request(tiny_estimator):
+    big = torch.full((3, 2100, 64), 0.2)
+    with pytest.raises(ValueError, match="--max-side 2048"):
+        pipeline(tiny_estimator, relit=0)(big)
+    out = pipeline(tiny_estimator, relit=0, max_side=256, refine_steps=1)(big)
+    assert out.material.shape == (2100, 64) and out.frame.size == (256, 256)
+    # The memory estimate at the limit stays under 2 GB and grows with the side.
+    assert refine_memory_bytes(MAX_SIDE, 8) < 2e9
+    assert refine_memory_bytes(512, 8) < refine_memory_bytes(1024, 8) < refine_memory_bytes(2048, 8)
+
+
+@pytest.mark.slow
+def test_a_512_pixel_photo_end_to_end(tiny_estimator):
+    out = pipeline(tiny_estimator, refine_steps=2)(builtin_photo(size=512))
+    assert out.material.shape == (512, 512) and out.frame.size == (512, 512)
+    assert out.refine_history[-1] < out.refine_history[0]
+
+
+# ---------------------------------------------------------------------- command line
+def capture_argv(photo, out, estimator_folder, *extra):
+    return ["capture", str(photo), "--out", str(out), "--estimator", str(estimator_folder), "--refine", "2", *extra]
+
+
+def test_cli_capture_then_estimate_round_trip(tmp_path, estimator_folder, capsys):
+    out = tmp_path / "cap"
+    args = capture_argv("builtin:tiles", out, estimator_folder, "--relighter", "lambertian", "--relit", "3")
+    assert main([*args, "--falloff", "none"]) == 0
+    assert "capture" in capsys.readouterr().err  # the progress bar
+    prov = json.loads((out / PROVENANCE_JSON).read_text())
+    capture = read_capture(out / "capture")
+    assert capture.num_views == 4 and capture.shape == (64, 64)
+    assert torch.allclose(capture.light_pos[1:], torch.tensor(EVAL_LIGHTS[:3]))
+    assert capture.camera_pos[0].tolist() == pytest.approx(prov["scene"]["camera_pos"])
+    # The written views are the relit ones, to 8-bit precision.
+    relit = torch.stack(
+        [torch.from_numpy(read_exr(out / "relit" / f"relit_{k:02d}.exr")).permute(2, 0, 1) for k in range(3)]
+    )
+    assert float((capture.images[1:] - relit.clamp(0, 1)).abs().max()) <= PNG_LINEAR_TOL
+    # `relight estimate` reruns the estimator on it.
+    est = tmp_path / "est"
+    assert main(["estimate", str(out / "capture"), "--out", str(est), "--model", str(estimator_folder)]) == 0
+    assert read_exr(est / "material" / "diffuse.exr").shape == (64, 64, 3)
+
+
+def test_cli_glb_re_read(tmp_path, estimator_folder):
+    out = tmp_path / "cap"
+    assert main(capture_argv("builtin", out, estimator_folder, "--relit", "0")) == 0
+    glb = read_glb(out / "material" / "material.glb")
+    material = glb.gltf["materials"][0]
+    assert SPECULAR_EXTENSION in glb.gltf["extensionsUsed"] and SPECULAR_EXTENSION in material["extensions"]
+    pbr = material["pbrMetallicRoughness"]
+    assert "baseColorTexture" in pbr and "metallicRoughnessTexture" in pbr and "normalTexture" in material
+    import io
+
+    base = Image.open(io.BytesIO(glb.texture_image(pbr["baseColorTexture"])))
+    assert base.size == (256, 256) and base.mode == "RGB"
+
+
+def test_cli_exif_orientation_end_to_end(tmp_path, estimator_folder):
+    # Stored 96 wide x 64 high with orientation 6 (turn 90 degrees clockwise): the photo is
+    # 64 wide x 96 high, and its stored top-left bright corner ends up top-right.
+    stored = np.full((64, 96, 3), 20, np.uint8)
+    stored[:32, :32] = 230
+    exif = Image.Exif()
+    exif[ExifTags.Base.Orientation] = 6
+    Image.fromarray(stored).save(tmp_path / "p.jpg", quality=95, exif=exif)
+    out = tmp_path / "cap"
+    args = capture_argv(tmp_path / "p.jpg", out, estimator_folder, "--relit", "0", "--falloff", "none")
+    assert main([*args, "--refine", "60"]) == 0  # the last --refine wins
+    diffuse = read_exr(out / "material" / "diffuse.exr").mean(-1)
+    assert diffuse.shape == (96, 64)
+    corners = [diffuse[:32, :32], diffuse[:32, 32:], diffuse[-32:, :32], diffuse[-32:, 32:]]
+    means = [float(c.mean()) for c in corners]
+    assert means.index(max(means)) == 1  # top-right
+    assert json.loads((out / PROVENANCE_JSON).read_text())["photo"]["orientation"] == 6
+
+
+def test_cli_non_square_png_works(tmp_path, estimator_folder):
+    write_png(tmp_path / "p.png", np.full((64, 150, 3), 0.4, np.float32))
+    assert (
+        main(capture_argv(tmp_path / "p.png", tmp_path / "o", estimator_folder, "--relit", "1", "--relighter", "input"))
+        == 0
+    )
+    assert read_exr(tmp_path / "o" / "material" / "normal.exr").shape == (64, 150, 3)
+
+
+def _bad_inputs(tmp_path) -> dict:
+    (tmp_path / "corrupt.jpg").write_bytes(b"\xff\xd8\xff\xe0" + b"\x00" * 50)
+    Image.fromarray(np.zeros((1, 1, 3), np.uint8)).save(tmp_path / "one.png")
+    # write_exr refuses NaN: the file is written with OpenEXR directly.
+    planes = {c: np.full((64, 64), np.nan if c == "G" else 0.5, np.float32) for c in "RGB"}
+    with OpenEXR.File({"type": OpenEXR.scanlineimage}, planes) as exr:
+        exr.write(str(tmp_path / "nan.exr"))
+    return {
+        "corrupt JPEG": (tmp_path / "corrupt.jpg", "cannot decode the JPEG"),
+        "1x1": (tmp_path / "one.png", "at least 64 pixels"),
+        "NaN EXR": (tmp_path / "nan.exr", "NaN"),
+        "missing": (tmp_path / "nothing.png", "does not exist"),
+        "unknown builtin": ("builtin:nosuch", "family"),
+    }
+
+
+@pytest.mark.parametrize("case", ["corrupt JPEG", "1x1", "NaN EXR", "missing", "unknown builtin"])
+def test_cli_bad_photo_is_one_error_line_and_nothing_written(tmp_path, estimator_folder, capsys, case):
+    photo, message = _bad_inputs(tmp_path)[case]
+    out = tmp_path / "o"
+    assert main(capture_argv(photo, out, estimator_folder)) == 2
+    err = capsys.readouterr().err
+    assert err.count("error:") == 1 and message in err and "Traceback" not in err
+    assert not out.exists() and not list(tmp_path.glob(".o.*"))
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--relit", "9"], "--relit must be 0..7"),
+        (["--refine", "-1"], "--refine must be >= 0"),
+        (["--fov", "190"], "--fov must lie strictly between"),
+        (["--max-side", "5000"], "--max-side must be 64..2048"),
+        (["--camera", "0,0,-1"], "below the material plane"),
+        (["--relighter", "nosuch"], "unknown relighter 'nosuch'"),
+        (["--relighter", "lambertian", "--samples", "2"], "applies to sampling methods"),
+    ],
+)
+def test_cli_bad_settings(tmp_path, estimator_folder, capsys, extra, message):
+    out = tmp_path / "o"
+    assert main([*capture_argv("builtin", out, estimator_folder), *extra]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err and not out.exists()
+
+
+def test_cli_read_only_output_folder(tmp_path, estimator_folder, capsys):
+    if os.geteuid() == 0:
+        pytest.skip("root writes into read-only folders; the permission case needs another user")
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o555)
+    try:
+        assert main(capture_argv("builtin", locked / "o", estimator_folder)) == 2
+        assert "cannot write in" in capsys.readouterr().err
+        assert list(locked.iterdir()) == []
+    finally:
+        locked.chmod(0o755)
+
+
+def test_cli_existing_output_is_checked_before_any_work(tmp_path, estimator_folder, capsys, monkeypatch):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "keep.txt").write_text("x")
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("computed before checking --out")
+
+    monkeypatch.setattr(CapturePipeline, "__call__", no_work)
+    assert main(capture_argv("builtin", out, estimator_folder)) == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert [p.name for p in out.iterdir()] == ["keep.txt"]
+
+
+def test_cli_interrupt_leaves_nothing_half_written(tmp_path, estimator_folder, monkeypatch):
+    import materials.io
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(materials.io, "write_capture", interrupted)
+    out = tmp_path / "o"
+    assert main(capture_argv("builtin", out, estimator_folder, "--relit", "0")) == 130
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_help_numbers_match_the_code(capsys):
+    from matcap.capture import DEFAULT_RELIGHT_STEPS
+
+    with pytest.raises(SystemExit):
+        main(["capture", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert f"(default {DEFAULT_RELIGHT_STEPS}, its best setting)" in text
+    assert f"at most {MAX_SIDE}" in text and f"relit views, 0-{len(EVAL_LIGHTS)}" in text
