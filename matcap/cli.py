@@ -8,10 +8,21 @@ import sys
 from matcap import cmd_capture, cmd_convert, cmd_estimate, cmd_eval, cmd_generate, cmd_render, cmd_synth, cmd_train
 from matcap.args import join_negative_values
 from matcap.errors import UsageError
+from matcap.web import cmd_serve
 
 __all__ = ["main", "build_parser"]
 
-_SUBCOMMANDS = [cmd_capture, cmd_render, cmd_synth, cmd_convert, cmd_generate, cmd_estimate, cmd_eval, cmd_train]
+_SUBCOMMANDS = [
+    cmd_capture,
+    cmd_render,
+    cmd_synth,
+    cmd_convert,
+    cmd_generate,
+    cmd_estimate,
+    cmd_eval,
+    cmd_train,
+    cmd_serve,
+]
 
 
 def build_parser() -> argparse.ArgumentParser:
