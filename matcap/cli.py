@@ -12,17 +12,7 @@ from matcap.web import cmd_serve
 
 __all__ = ["main", "build_parser"]
 
-_SUBCOMMANDS = [
-    cmd_capture,
-    cmd_render,
-    cmd_synth,
-    cmd_convert,
-    cmd_generate,
-    cmd_estimate,
-    cmd_eval,
-    cmd_train,
-    cmd_serve,
-]
+_SUBCOMMANDS = [cmd_capture, cmd_render, cmd_synth, cmd_convert, cmd_generate, cmd_estimate, cmd_eval, cmd_train]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -33,6 +23,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for module in _SUBCOMMANDS:
         module.add_parser(sub)
+    cmd_serve.add_parser(sub)
     return parser
 
 

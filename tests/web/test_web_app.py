@@ -123,8 +123,8 @@ def test_upload_capture_result_and_downloads(server, page):
     # The relit views (2), their lights in the diagram, the four maps, all decoded.
     page.wait_for_function(f"document.body.dataset.viewerJob === '{job_id}'", timeout=30_000)
     loaded = page.evaluate(
-        """() => ['#relit img', '#maps img', '#renders img'].map(
-        s => [...document.querySelectorAll(s)].map(i => i.complete && i.naturalWidth > 0))"""
+        """() => ['#relit-views img', '#maps img', '#renders img'].map(s => [...document.querySelectorAll(s)]
+        .map(i => i.complete && i.naturalWidth > 0 && i.getBoundingClientRect().width > 0))"""
     )
     assert loaded[0] == [True, True]
     assert loaded[1] == [True] * 4
@@ -271,6 +271,7 @@ def test_bad_uploads_show_a_message_and_leave_nothing(server, page):
     assert page.locator("#jobs li").count() == 0
 
 
+@pytest.mark.slow
 def test_four_uploads_at_once_all_complete(server, page):
     page.goto(server.url)
     set_fast_options(page)

@@ -172,7 +172,7 @@ async function showResult(id, status) {
   $("download-zip").href = r.zip;
   $("download-glb").href = r.glb || "";
   $("download-glb").hidden = !r.glb;
-  $("relit").replaceChildren(...r.relit.map((v, k) =>
+  $("relit-views").replaceChildren(...r.relit.map((v, k) =>
     figure(v.url, `light ${k + 1} ${fmt(v.light)}`, () => state.viewer && state.viewer.setLight(v.light))));
   $("maps").replaceChildren(...Object.entries(r.maps).filter(([, url]) => url).map(([name, url]) => figure(url, name)));
   $("renders").replaceChildren(...r.renders.map((v, k) =>
