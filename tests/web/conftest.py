@@ -145,8 +145,15 @@ class Server:
 def server(tmp_path_factory):
     root = tmp_path_factory.mktemp("web")
     srv = Server(root / "data", "--max-upload-mb", str(TEST_UPLOAD_MB))
+    srv.upload_mb = TEST_UPLOAD_MB
     yield srv
     srv.stop()
+
+
+@pytest.fixture
+def make_server():
+    """``Server`` itself, for a test that starts one with flags of its own (and stops it)."""
+    return Server
 
 
 @pytest.fixture(scope="module")

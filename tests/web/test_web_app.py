@@ -25,7 +25,6 @@ from matcap.web.jobs import CaptureOptions, JobStore
 from materials.frame import Frame
 from materials.io import export_material
 from materials.procedural import generate
-from tests.web.conftest import TEST_UPLOAD_MB, Server
 
 #: The fast capture the tests run (seconds on a CPU; the app's behaviour does not depend on it).
 FAST = {"relit": "2", "relighter": "lambertian", "refine": "5"}
@@ -94,9 +93,9 @@ def listening(port: int) -> set[str]:
 
 # ---------------------------------------------------------------------- network
 @pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="reads the listening sockets from Linux /proc")
-def test_listens_on_loopback_only_unless_host_says_otherwise(server, tmp_path):
+def test_listens_on_loopback_only_unless_host_says_otherwise(server, make_server, tmp_path):
     assert listening(server.port) == {"127.0.0.1"}
-    wide = Server(tmp_path / "data", "--host", "0.0.0.0")
+    wide = make_server(tmp_path / "data", "--host", "0.0.0.0")
     try:
         assert listening(wide.port) == {"0.0.0.0"}
     finally:
@@ -257,7 +256,7 @@ def test_bad_uploads_show_a_message_and_leave_nothing(server, page):
     message = upload_error(page, "cut.png", png[: len(png) // 2])
     print(f"\ntruncated PNG: {message}")
     assert message.startswith("cut.png:") and re.search(r"truncat|corrupt|broken|cannot|damaged", message, re.I)
-    big = png + bytes(int(TEST_UPLOAD_MB * 1e6))
+    big = png + bytes(int(server.upload_mb * 1e6))
     assert "larger than the upload limit" in upload_error(page, "big.png", big)
     # The server refuses it too (a client that skips the page's own check).
     status, body = server.post_photo(big, "big.png")
@@ -316,3 +315,32 @@ def test_files_are_served_only_from_inside_the_job(server):
         "/static/%2e%2e/jobs.py",
     ):
         assert raw(path) == 404, path
+
+
+def test_a_chunked_upload_over_the_limit_is_refused(server):
+    # No Content-Length to refuse up front: the body is counted as it arrives.
+    import http.client
+
+    boundary = "relightchunked"
+    head = (
+        f'--{boundary}\r\nContent-Disposition: form-data; name="photo"; filename="big.png"\r\n'
+        "Content-Type: image/png\r\n\r\n"
+    ).encode()
+    chunk = bytes(256 * 1024)
+    count = int(server.upload_mb * 1e6) // len(chunk) + 2
+    body = [head, *[chunk] * count, f"\r\n--{boundary}--\r\n".encode()]
+    conn = http.client.HTTPConnection("127.0.0.1", server.port, timeout=60)
+    try:
+        conn.request(
+            "POST",
+            "/api/jobs",
+            body=iter(body),
+            headers={"Content-Type": f"multipart/form-data; boundary={boundary}", "Transfer-Encoding": "chunked"},
+            encode_chunked=True,
+        )
+        res = conn.getresponse()
+        status, answer = res.status, json.loads(res.read())
+    finally:
+        conn.close()
+    assert status == 413 and "upload limit" in answer["error"]
+    assert not any((server.data / "tmp").iterdir())
