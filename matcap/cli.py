@@ -8,6 +8,7 @@ import sys
 from matcap import cmd_capture, cmd_convert, cmd_estimate, cmd_eval, cmd_generate, cmd_render, cmd_synth, cmd_train
 from matcap.args import join_negative_values
 from matcap.errors import UsageError
+from matcap.web import cmd_serve
 
 __all__ = ["main", "build_parser"]
 
@@ -22,6 +23,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for module in _SUBCOMMANDS:
         module.add_parser(sub)
+    cmd_serve.add_parser(sub)
     return parser
 
 

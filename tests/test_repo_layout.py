@@ -29,6 +29,9 @@ DOC_NAMES = ("DESIGN.md", "README.md", "TRAINING.md")
 #: Allowed in addition inside a ``weights`` folder: the checkpoints, their configs
 #: (config.json, scheduler_config.json, ...) and the loss curves of their training record.
 WEIGHTS_PATTERNS = ("*.safetensors", "*.json", "loss_curve*.png")
+#: Allowed in addition inside a ``static`` folder: a web page's own code (``matcap/web``,
+#: served by the app itself, so it ships with the package).
+STATIC_PATTERNS = ("*.html", "*.js", "*.css")
 
 #: Picture size budget (README, "Results and weights in git"), and the one named exception:
 #: the Table-1 picture, 80 crops of 64 x 64 pixels, 452 KB after 5-bit rounding (4 bits
@@ -75,6 +78,8 @@ def allowed_in_package(path: str) -> bool:
     name = parts[-1]
     if any(fnmatch(name, pattern) for pattern in CODE_PATTERNS) or name in DOC_NAMES:
         return True
+    if "static" in parts[:-1] and any(fnmatch(name, pattern) for pattern in STATIC_PATTERNS):
+        return True
     in_weights = "weights" in parts[:-1]
     return in_weights and any(fnmatch(name, pattern) for pattern in WEIGHTS_PATTERNS)
 
@@ -85,6 +90,9 @@ def test_allowed_in_package_rules():
     assert allowed_in_package("estimator/DESIGN.md")
     assert allowed_in_package("weights/diffusion/scheduler_config.json")
     assert allowed_in_package("weights/estimator/loss_curve_stage5.png")
+    assert allowed_in_package("matcap/web/static/viewer.js")
+    assert not allowed_in_package("matcap/web/viewer.js")
+    assert not allowed_in_package("matcap/web/static/screenshot.png")
     assert not allowed_in_package("estimator/results/estimator_eval.json")
     assert not allowed_in_package("relight/diffusion/results/relight_eval.png")
     assert not allowed_in_package("relight/diffusion/results/ablations/run_ablations.sh")
