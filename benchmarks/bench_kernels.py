@@ -518,10 +518,15 @@ def render_limit(peak: dict, k: int) -> dict:
 
 
 def _ratio(row: dict, impl: str) -> str:
-    """Warp's throughput over ``impl``'s (>1: Warp faster)."""
+    """Warp's throughput over ``impl``'s (>1: Warp faster), by wall clock, then by process
+    CPU time (all threads; on a loaded machine the wall clock also counts the time the
+    process waited for a core, the CPU time does not, but it counts torch's OpenMP
+    threads spinning)."""
     if impl not in row:
         return "-"
-    return f"{row['warp']['throughput'] / row[impl]['throughput']:.2f}x"
+    wall = row["warp"]["throughput"] / row[impl]["throughput"]
+    cpu = row[impl]["cpu"]["median"] / row["warp"]["cpu"]["median"]
+    return f"{wall:.2f}x ({cpu:.2f}x)"
 
 
 def markdown(report: dict) -> str:
@@ -532,7 +537,9 @@ def markdown(report: dict) -> str:
         f"warp {meta['warp']}; {meta['date']}. Threads per row: torch.set_num_threads and {THREADS_ENV}. "
         f"Median [min-max] of {meta['repeats']} repeats after {meta['warmup']} warm-up, the implementations "
         f"interleaved in one process; load average (1 min) before and after each case in the last column. "
-        "warp/torch, warp/compile: Warp's throughput over the other's (>1: Warp faster).",
+        "warp/torch, warp/compile: Warp's throughput over the other's (>1: Warp faster) by wall clock, "
+        "in brackets by process CPU time (all threads; on a loaded machine the wall clock also counts "
+        "waiting for a core).",
     ]
     if peak:
         lim = render_limit(peak, report["cases"][0]["case"]["k"])
@@ -543,6 +550,7 @@ def markdown(report: dict) -> str:
             f"{report['cases'][0]['case']['k']}: {RENDER_FWD_FLOPS} FLOPs -> {lim['compute_mpl_s']:.0f} "
             f"Mpixel-lights/s, {render_fwd_bytes(report['cases'][0]['case']['k']):.0f} bytes -> "
             f"{lim['memory_mpl_s']:.0f}; 'of limit': a forward's throughput over threads x "
+            f"{lim['limit_mpl_s']:.0f}, in brackets its pixel-lights per CPU-second over "
             f"{lim['limit_mpl_s']:.0f}.",
         ]
     lines += [
@@ -559,8 +567,10 @@ def markdown(report: dict) -> str:
                 first = f"{r['first_s'] - r['total']['median']:.1f}"
             limit = "-"
             if peak and row["case"]["op"] == "render" and row["case"]["mode"] == "fwd":
-                lim = render_limit(peak, row["case"]["k"])["limit_mpl_s"] * row["threads"]
-                limit = f"{r['throughput'] / lim:.1%}"
+                lim = render_limit(peak, row["case"]["k"])["limit_mpl_s"]
+                per_cpu_s = row["case"]["b"] * row["case"]["k"] * row["case"]["h"] * row["case"]["w"] / 1e6
+                per_cpu_s /= r["cpu"]["median"]
+                limit = f"{r['throughput'] / (lim * row['threads']):.1%} ({per_cpu_s / lim:.1%})"
             lines.append(
                 f"| {row['threads']} | {row['name']} | {row['size']} | {impl} | {_fmt_ms(r['fwd'])} | "
                 f"{_fmt_ms(r['bwd'])} | {_fmt_ms(r['total']) if r['bwd'] else '-'} | "
