@@ -2,18 +2,23 @@
 
 Usage::
 
-    python benchmarks/bench_kernels.py [--quick] [--threads N] [--out benchmarks/results/kernels.json]
+    python benchmarks/bench_kernels.py [--quick] [--threads 1,2] [--cases a,b] [--out benchmarks/results/kernels.json]
 
-Both sides get the same thread budget: ``torch.set_num_threads(N)`` and
-``DGRSISE_KERNEL_THREADS=N`` (default N=2, this machine's cores). Each case runs in
-subprocesses, Warp beside the reference:
+Three implementations per case: Warp (``kernels``), the eager pure-torch twin
+(``kernels.reference``, "torch") and, for the rendering cases, ``torch.compile`` of that
+same twin ("compile": Inductor's C++ with the CPU's vector units, the peer a user would
+pick instead of Warp). All get the same thread budget: ``torch.set_num_threads(N)`` and
+``DGRSISE_KERNEL_THREADS=N``, one table row group per N of ``--threads`` (default 1,2).
+Each case runs in subprocesses:
 
-- timings: one subprocess per case builds both sides and interleaves their repeats
-  (Warp, torch, Warp, ...) after warm-up, so a change in the shared machine's load hits
-  both alike; median and min/max (and quartiles in the JSON) over the repeats. Forward
-  and backward are timed separately. Throughput and speed-up use wall-clock medians;
-  the process CPU time of a step (all threads) is reported beside them, since on a
-  shared machine the wall clock also measures the other jobs;
+- timings: one subprocess per case and thread count builds every side and interleaves
+  their repeats (Warp, torch, compile, Warp, ...) after warm-up, so a change in the
+  shared machine's load hits all alike; median and min/max (and quartiles in the JSON)
+  over the repeats. Forward and backward are timed separately. Throughput and ratios
+  use wall-clock medians; the process CPU time of a step (all threads) is reported
+  beside them, since on a shared machine the wall clock also measures the other jobs.
+  torch.compile's compile time (its first call minus a steady call, forward and
+  backward graphs together) is reported apart and never enters the run time;
 - peak extra memory: a fresh subprocess per side measures the rise of the process's
   peak RSS (``VmHWM``, reset through ``/proc/self/clear_refs``; ``ru_maxrss`` as a
   fallback) during one step over its RSS once the inputs are allocated and the kernels
@@ -25,7 +30,17 @@ empty kernel cache (``DGRSISE_WARP_CACHE`` = a fresh folder) times each module's
 call minus a steady call (cold compile); a second subprocess on the same cache does the
 same (warm load from the cache).
 
-Results go to a JSON file and are printed as markdown tables.
+The CPU's limit (``peak_worker``, one thread): a STREAM-like copy and triad over arrays
+far larger than the caches (memory bandwidth) and a chain of fused multiply-adds on an
+L1-resident array compiled by torch.compile (vector FMA throughput). The forward
+render's limit is min(FMA rate / FLOPs per pixel-light, bandwidth / bytes per
+pixel-light), with both per-pixel-light costs counted from the kernel's code
+(``RENDER_FWD_FLOPS``, ``render_fwd_bytes``); each implementation's forward throughput
+is reported as a fraction of it.
+
+Results go to a JSON file and are printed as markdown tables (also written next to the
+JSON, same name with ``.md``); the JSON records the CPU model, the thread counts and the
+load average before and after each case.
 """
 
 from __future__ import annotations
@@ -41,12 +56,32 @@ import sys
 import tempfile
 import time
 from dataclasses import asdict, dataclass
+from functools import cache
 from pathlib import Path
+from types import SimpleNamespace
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "kernels.json"
 THREADS_ENV = "DGRSISE_KERNEL_THREADS"
 CACHE_ENV = "DGRSISE_WARP_CACHE"
-IMPLS = ("warp", "torch")
+IMPLS = ("warp", "torch", "compile")
+#: FLOPs of one pixel-light of the forward render, counted from ``kernels.brdf`` (every
+#: add, multiply, compare-select, division and square root as one; the Fresnel 2^x as
+#: one): light and view directions 2 x (3 sub + dot 5 + eps 1 + sqrt 1 + 3 div) = 26; half
+#: vector 3 + 5 + 1 + 1 + 3 = 13; four clamped dots 4 x 6 = 24; roughness, alpha, k, a2 4;
+#: |n x h|^2 with its select 15; GGX D 3 + 3 = 6; Fresnel exponent 3 + 2^x 1 + blend 9 = 13;
+#: the two Smith factors and their product 10; diffuse term 9; shading sum and cosine 10;
+#: intensity and inverse square 6. The per-pixel normalisation of n (~10) is spread over
+#: the K lights and left out.
+RENDER_FWD_FLOPS = 136
+#: Cores of the thread counts benchmarked by default: the machine's 2.
+DEFAULT_THREADS = "1,2"
+
+
+def render_fwd_bytes(k: int) -> float:
+    """DRAM bytes per pixel-light of the forward render with K lights: the 10 float32 map
+    values of a pixel read once for its K lights, 3 float32 radiance values written, and
+    the write-allocate read of the output's cache lines (no non-temporal stores)."""
+    return 10 * 4 / k + 3 * 4 + 3 * 4
 
 
 @dataclass(frozen=True)
@@ -72,12 +107,17 @@ class Case:
         return "Melem/s" if self.op == "translate" else "Mpixel-lights/s"
 
     @property
+    def impls(self) -> tuple[str, ...]:
+        """Implementations benchmarked: torch.compile only for the rendering twins."""
+        return IMPLS if self.op in ("render", "rendering_loss") else IMPLS[:2]
+
+    @property
     def size(self) -> str:
         extra = f"C={self.c}" if self.op == "translate" else f"K={self.k}"
         return f"B={self.b} {extra} {self.h}x{self.w}"
 
 
-def make_cases(quick: bool) -> list[Case]:
+def make_cases(quick: bool, names: list[str] | None = None) -> list[Case]:
     if quick:
         cases = [
             Case("render_fwd", "render", "fwd", b=2, k=2, h=64, w=64),
@@ -98,6 +138,11 @@ def make_cases(quick: bool) -> list[Case]:
         sweep = [64, 128, 256, 512]
     b, k = cases[0].b, cases[0].k
     cases += [Case(f"render_fwd_sweep_{s}", "render", "fwd", b=b, k=k, h=s, w=s) for s in sweep]
+    if names:
+        unknown = set(names) - {c.name for c in cases}
+        if unknown:
+            raise SystemExit(f"unknown case(s) {sorted(unknown)}; known: {[c.name for c in cases]}")
+        cases = [c for c in cases if c.name in names]
     return cases
 
 
@@ -128,6 +173,19 @@ def _peak_kb() -> int:
     return hwm if hwm is not None else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 
 
+@cache
+def _compiled() -> SimpleNamespace:
+    """torch.compile of the rendering twins (static shapes: every case has one shape)."""
+    import torch
+
+    from kernels import reference
+
+    return SimpleNamespace(
+        render=torch.compile(reference.render, dynamic=False),
+        rendering_loss=torch.compile(reference.rendering_loss, dynamic=False),
+    )
+
+
 def _setup(case: Case, impl: str, device: str, seed: int = 0):
     """Inputs and a step function (fwd, or fwd then bwd) for one case and implementation."""
     import torch
@@ -141,7 +199,7 @@ def _setup(case: Case, impl: str, device: str, seed: int = 0):
     def rand(*shape, lo=0.0, hi=1.0):
         return (lo + (hi - lo) * torch.rand(shape, generator=g)).to(device)
 
-    lib = kernels if impl == "warp" else reference
+    lib = {"warp": kernels, "torch": reference, "compile": _compiled()}[impl]
     if case.op == "translate":
         feats = torch.randn((case.b, case.c, case.h, case.w), generator=g).to(device).requires_grad_(need_grad)
         offs = rand(case.b, 2, lo=-5.0, hi=5.0).requires_grad_(need_grad)
@@ -197,7 +255,10 @@ def _sync(device: str) -> None:
 
 def _load(case: Case, impl: str, device: str) -> None:
     """Load (or compile) the Warp modules on a tiny problem, so that neither memory nor
-    the timings include it: compile time is reported apart."""
+    the timings include it: compile time is reported apart. torch.compile specialises
+    on shapes, so its warm-up runs on the case itself (``timing_worker``, ``memory_worker``)."""
+    if impl == "compile":
+        return
     small = Case(case.name, case.op, case.mode, b=1, h=4, w=4, k=case.k, c=case.c)
     fwd, bwd = _setup(small, impl, device)
     out = fwd()
@@ -213,6 +274,12 @@ def memory_worker(case: Case, impl: str, device: str) -> dict:
     torch.set_num_threads(int(os.environ[THREADS_ENV]))
     _load(case, impl, device)
     forward, backward = _setup(case, impl, device)
+    if impl == "compile":  # compile on the case's shapes first, outside the measurement
+        with torch.enable_grad() if backward else torch.no_grad():
+            out = forward()
+            if backward:
+                backward(out)
+            del out
     with torch.enable_grad() if backward else torch.no_grad():
         _sync(device)
         base_kb = _rss_kb("VmRSS") or resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
@@ -229,18 +296,20 @@ def memory_worker(case: Case, impl: str, device: str) -> dict:
 
 
 def timing_worker(case: Case, device: str, warmup: int, repeats: int) -> dict:
-    """Runs inside a subprocess: both implementations, their repeats interleaved (warp,
-    torch, warp, ...) so that a change in the machine's load hits both alike."""
+    """Runs inside a subprocess: every implementation of the case, their repeats
+    interleaved (warp, torch, compile, warp, ...) so that a change in the machine's load
+    hits all alike. The first step of each side is timed apart (``first_s``): for
+    torch.compile it includes compiling the forward and backward graphs."""
     import torch
 
     torch.set_num_threads(int(os.environ[THREADS_ENV]))
     steps, times = {}, {}
-    for impl in IMPLS:
+    for impl in case.impls:
         _load(case, impl, device)
         steps[impl] = _setup(case, impl, device)
-        times[impl] = {"fwd_s": [], "bwd_s": [], "total_s": [], "cpu_s": []}
-    for i in range(warmup + repeats):
-        for impl in IMPLS:
+        times[impl] = {"fwd_s": [], "bwd_s": [], "total_s": [], "cpu_s": [], "first_s": None}
+    for i in range(1 + warmup + repeats):
+        for impl in case.impls:
             forward, backward = steps[impl]
             with torch.enable_grad() if backward else torch.no_grad():
                 _sync(device)
@@ -253,15 +322,66 @@ def timing_worker(case: Case, device: str, warmup: int, repeats: int) -> dict:
                     _sync(device)
                 t2, c2 = time.perf_counter(), time.process_time()
                 del out
-            if i >= warmup:
+            if i == 0:
+                times[impl]["first_s"] = t2 - t0
+            elif i > warmup:
                 times[impl]["cpu_s"].append(c2 - c0)
                 times[impl]["fwd_s"].append(t1 - t0)
                 times[impl]["bwd_s"].append(t2 - t1)
                 times[impl]["total_s"].append(t2 - t0)
-    for impl in IMPLS:
+    for impl in case.impls:
         if steps[impl][1] is None:
             times[impl]["bwd_s"] = None
     return times
+
+
+def peak_worker() -> dict:
+    """Runs inside a one-thread subprocess: this CPU core's memory bandwidth (STREAM-like
+    copy and triad, GB/s counting the bytes read and written, no write-allocate) and its
+    float32 multiply-add rate (GFLOP/s, 2 per multiply-add) on a chain compiled by
+    torch.compile, on a cache-resident array. Best of several repeats: the peak, not a typical value."""
+    import torch
+
+    torch.set_num_threads(1)
+    n = 1 << 25  # 128 MB per float32 array: far beyond any cache
+    a, b, c = torch.rand(n), torch.rand(n), torch.empty(n)
+
+    def best(fn, repeats=7):
+        fn()
+        ts = []
+        for _ in range(repeats):
+            t = time.perf_counter()
+            fn()
+            ts.append(time.perf_counter() - t)
+        return min(ts)
+
+    copy_s = best(lambda: c.copy_(a))
+    triad_s = best(lambda: torch.add(b, a, alpha=3.0, out=c))
+    # Multiply-adds per element: far more than its memory operations. Eight independent
+    # chains (fused into one loop by torch.compile) so that the FMA latency is hidden and
+    # the vector units' throughput binds, as it would for the render's many independent
+    # terms; 256 KB of data (L2-resident) make a call ~1e7 multiply-adds, so that its
+    # fixed overhead stays small.
+    links, chains = 32, 8
+
+    def chain(x, s):
+        outs = []
+        for c in range(chains):
+            y = x
+            for _ in range(links):
+                y = y * s + (0.5 + c)
+            outs.append(y)
+        return outs
+
+    x = torch.rand(1 << 16)
+    fma_fn = torch.compile(chain, dynamic=False)
+    s = torch.tensor(0.999)
+    fma_s = best(lambda: fma_fn(x, s), repeats=20)
+    return {
+        "copy_gbs": 2 * 4 * n / copy_s / 1e9,
+        "triad_gbs": 3 * 4 * n / triad_s / 1e9,
+        "fma_gflops": 2 * links * chains * x.numel() / fma_s / 1e9,
+    }
 
 
 def compile_worker(modules: list[str]) -> dict:
@@ -388,27 +508,76 @@ def _fmt_ms(s: dict | None) -> str:
     return f"{s['median'] * 1e3:.1f} [{s['min'] * 1e3:.1f}-{s['max'] * 1e3:.1f}]"
 
 
+def render_limit(peak: dict, k: int) -> dict:
+    """This CPU's forward-render limit (Mpixel-lights/s per core) from the measured peaks:
+    the FMA rate over ``RENDER_FWD_FLOPS`` and the triad bandwidth over
+    ``render_fwd_bytes(k)``; the smaller one binds."""
+    compute = peak["fma_gflops"] * 1e3 / RENDER_FWD_FLOPS
+    memory = peak["triad_gbs"] * 1e3 / render_fwd_bytes(k)
+    return {"compute_mpl_s": compute, "memory_mpl_s": memory, "limit_mpl_s": min(compute, memory)}
+
+
+def _ratio(row: dict, impl: str) -> str:
+    """Warp's throughput over ``impl``'s (>1: Warp faster), by wall clock, then by process
+    CPU time (all threads; on a loaded machine the wall clock also counts the time the
+    process waited for a core, the CPU time does not, but it counts torch's OpenMP
+    threads spinning)."""
+    if impl not in row:
+        return "-"
+    wall = row["warp"]["throughput"] / row[impl]["throughput"]
+    cpu = row[impl]["cpu"]["median"] / row["warp"]["cpu"]["median"]
+    return f"{wall:.2f}x ({cpu:.2f}x)"
+
+
 def markdown(report: dict) -> str:
     meta = report["meta"]
+    peak = meta.get("peak")
     lines = [
-        f"Threads: {meta['threads']} (torch.set_num_threads and {THREADS_ENV}); device {meta['device']}; "
-        f"torch {meta['torch']}, warp {meta['warp']}; {meta['cpu']}; "
-        f"median [min-max] of {meta['repeats']} repeats after {meta['warmup']} warm-up, Warp and torch "
-        f"interleaved; load average {meta['loadavg_before'][0]:.1f} before, {meta['loadavg_after'][0]:.1f} after "
-        f"on {meta['cores']} cores (the machine is shared).",
+        f"{meta['cpu']}, {meta['cores']} cores (shared); device {meta['device']}; torch {meta['torch']}, "
+        f"warp {meta['warp']}; {meta['date']}. Threads per row: torch.set_num_threads and {THREADS_ENV}. "
+        f"Median [min-max] of {meta['repeats']} repeats after {meta['warmup']} warm-up, the implementations "
+        f"interleaved in one process; load average (1 min) before and after each case in the last column. "
+        "warp/torch, warp/compile: Warp's throughput over the other's (>1: Warp faster) by wall clock, "
+        "in brackets by process CPU time (all threads; on a loaded machine the wall clock also counts "
+        "waiting for a core).",
+    ]
+    if peak:
+        lim = render_limit(peak, report["cases"][0]["case"]["k"])
+        lines += [
+            "",
+            f"Measured peak, one thread: copy {peak['copy_gbs']:.1f} GB/s, triad {peak['triad_gbs']:.1f} GB/s, "
+            f"multiply-add {peak['fma_gflops']:.1f} GFLOP/s. Forward render limit per core at K="
+            f"{report['cases'][0]['case']['k']}: {RENDER_FWD_FLOPS} FLOPs -> {lim['compute_mpl_s']:.0f} "
+            f"Mpixel-lights/s, {render_fwd_bytes(report['cases'][0]['case']['k']):.0f} bytes -> "
+            f"{lim['memory_mpl_s']:.0f}; 'of limit': a forward's throughput over threads x "
+            f"{lim['limit_mpl_s']:.0f}, in brackets its pixel-lights per CPU-second over "
+            f"{lim['limit_mpl_s']:.0f}.",
+        ]
+    lines += [
         "",
-        "| case | size | impl | fwd ms | bwd ms | fwd+bwd ms | CPU ms | throughput | speed-up | peak extra MB |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| threads | case | size | impl | fwd ms | bwd ms | fwd+bwd ms | CPU ms | throughput | warp/torch "
+        "| warp/compile | compile s | of limit | peak extra MB | load |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in report["cases"]:
-        for impl in IMPLS:
+        for impl in row["impls"]:
             r = row[impl]
-            speed = f"{row['speedup']:.2f}x" if impl == "warp" else "1.00x"
+            first = "-"
+            if impl == "compile":
+                first = f"{r['first_s'] - r['total']['median']:.1f}"
+            limit = "-"
+            if peak and row["case"]["op"] == "render" and row["case"]["mode"] == "fwd":
+                lim = render_limit(peak, row["case"]["k"])["limit_mpl_s"]
+                per_cpu_s = row["case"]["b"] * row["case"]["k"] * row["case"]["h"] * row["case"]["w"] / 1e6
+                per_cpu_s /= r["cpu"]["median"]
+                limit = f"{r['throughput'] / (lim * row['threads']):.1%} ({per_cpu_s / lim:.1%})"
             lines.append(
-                f"| {row['name']} | {row['size']} | {impl} | {_fmt_ms(r['fwd'])} | {_fmt_ms(r['bwd'])} | "
-                f"{_fmt_ms(r['total']) if r['bwd'] else '-'} | {r['cpu']['median'] * 1e3:.0f} | "
-                f"{r['throughput']:.1f} {row['unit']} | {speed} | "
-                f"{r['peak_extra_mb']:.0f} |"
+                f"| {row['threads']} | {row['name']} | {row['size']} | {impl} | {_fmt_ms(r['fwd'])} | "
+                f"{_fmt_ms(r['bwd'])} | {_fmt_ms(r['total']) if r['bwd'] else '-'} | "
+                f"{r['cpu']['median'] * 1e3:.0f} | {r['throughput']:.1f} {row['unit']} | "
+                f"{_ratio(row, 'torch') if impl == 'warp' else ''} | "
+                f"{_ratio(row, 'compile') if impl == 'warp' else ''} | {first} | {limit} | "
+                f"{r['peak_extra_mb']:.0f} | {row['loadavg_before'][0]:.1f}-{row['loadavg_after'][0]:.1f} |"
             )
     comp = report.get("compile")
     if comp:
@@ -431,13 +600,18 @@ def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="small sizes and few repeats (smoke run)")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="JSON results file")
-    parser.add_argument("--threads", type=int, default=2, help="thread budget for both sides")
+    parser.add_argument(
+        "--threads", default=DEFAULT_THREADS, help="comma-separated thread budgets, one row group each (all sides)"
+    )
+    parser.add_argument("--cases", default=None, help="comma-separated case names (default: all)")
+    parser.add_argument("--no-peak", action="store_true", help="skip the bandwidth/FMA peak measurement")
     parser.add_argument("--device", default="cpu", help="cpu or cuda")
     parser.add_argument("--repeats", type=int, default=None, help="timed repeats (default 7, quick 3)")
     parser.add_argument("--warmup", type=int, default=None, help="untimed warm-up runs (default 2, quick 1)")
     parser.add_argument("--no-compile", action="store_true", help="skip the compile-time measurement")
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     parser.add_argument("--compile-worker", help=argparse.SUPPRESS)
+    parser.add_argument("--peak-worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
 
     if args.worker:  # subprocess: one case's timings (both sides) or one side's memory
@@ -449,6 +623,10 @@ def main(argv: list[str] | None = None) -> dict:
             result = memory_worker(case, spec["impl"], spec["device"])
         print(json.dumps(result))
         return result
+    if args.peak_worker:
+        result = peak_worker()
+        print(json.dumps(result))
+        return result
     if args.compile_worker:
         result = compile_worker(json.loads(args.compile_worker))
         print(json.dumps(result))
@@ -457,11 +635,12 @@ def main(argv: list[str] | None = None) -> dict:
     import torch
     import warp
 
+    thread_counts = [int(t) for t in str(args.threads).split(",")]
     repeats = args.repeats or (3 if args.quick else 7)
     warmup = args.warmup if args.warmup is not None else (1 if args.quick else 2)
     report = {
         "meta": {
-            "threads": args.threads,
+            "threads": thread_counts,
             "device": args.device,
             "quick": args.quick,
             "repeats": repeats,
@@ -476,12 +655,24 @@ def main(argv: list[str] | None = None) -> dict:
         },
         "cases": [],
     }
-    for case in make_cases(args.quick):
-        row = {"name": case.name, "size": case.size, "unit": case.unit, "case": asdict(case)}
+    if not args.no_peak:
+        report["meta"]["peak"] = _spawn(["--peak-worker"], {}, 1)
+    for threads, case in [
+        (t, c) for t in thread_counts for c in make_cases(args.quick, args.cases and args.cases.split(","))
+    ]:
+        row = {
+            "name": case.name,
+            "threads": threads,
+            "size": case.size,
+            "unit": case.unit,
+            "case": asdict(case),
+            "impls": list(case.impls),
+            "loadavg_before": os.getloadavg(),
+        }
         spec = {"case": asdict(case), "device": args.device, "warmup": warmup, "repeats": repeats}
-        timing = _spawn(["--worker", json.dumps({**spec, "what": "time"})], {}, args.threads)
-        for impl in IMPLS:
-            memory = _spawn(["--worker", json.dumps({**spec, "what": "memory", "impl": impl})], {}, args.threads)
+        timing = _spawn(["--worker", json.dumps({**spec, "what": "time"})], {}, threads)
+        for impl in case.impls:
+            memory = _spawn(["--worker", json.dumps({**spec, "what": "memory", "impl": impl})], {}, threads)
             raw = timing[impl]
             total = _stats(raw["total_s"])
             row[impl] = {
@@ -490,15 +681,19 @@ def main(argv: list[str] | None = None) -> dict:
                 "total": total,
                 "cpu": _stats(raw["cpu_s"]),
                 "throughput": case.work / total["median"] / 1e6,
+                "first_s": raw["first_s"],
                 **memory,
                 "raw": raw,
             }
             print(
-                f"{case.name:28s} {impl:5s} {total['median'] * 1e3:9.1f} ms  "
+                f"{threads}t {case.name:28s} {impl:7s} {total['median'] * 1e3:9.1f} ms  "
                 f"{row[impl]['throughput']:7.1f} {case.unit}  +{memory['peak_extra_mb']:.0f} MB",
                 flush=True,
             )
         row["speedup"] = row["torch"]["total"]["median"] / row["warp"]["total"]["median"]
+        if "compile" in row:
+            row["speedup_vs_compile"] = row["compile"]["total"]["median"] / row["warp"]["total"]["median"]
+        row["loadavg_after"] = os.getloadavg()
         report["cases"].append(row)
     report["meta"]["loadavg_after"] = os.getloadavg()
 
@@ -508,14 +703,16 @@ def main(argv: list[str] | None = None) -> dict:
             modules += ["render_f64", "grad_f64", "image_f64"]
         with tempfile.TemporaryDirectory(prefix="dgrsise-warp-cache-") as cache:
             env = {CACHE_ENV: cache}
-            cold = _spawn(["--compile-worker", json.dumps(modules)], env, args.threads)
-            warm = _spawn(["--compile-worker", json.dumps(modules)], env, args.threads)
+            cold = _spawn(["--compile-worker", json.dumps(modules)], env, thread_counts[-1])
+            warm = _spawn(["--compile-worker", json.dumps(modules)], env, thread_counts[-1])
         report["compile"] = {"cold": cold, "warm": warm}
 
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=2))
+    table = markdown(report)
+    args.out.with_suffix(".md").write_text(table + "\n")
     print()
-    print(markdown(report))
+    print(table)
     print(f"\nwrote {args.out}")
     return report
 

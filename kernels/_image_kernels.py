@@ -114,10 +114,23 @@ def build_image_kernels(F) -> SimpleNamespace:
             row = b * num_lights + k
             if store_fresnel != 0:
                 fresnel[row, i, j] = w
+            # sum_c |log(x_c + eps) - log(y_c + eps)| = log(prod_c max_c / prod_c min_c)
+            # of a_c = x_c + eps, t_c = y_c + eps (|log(a / t)| = log(max / min)): one log
+            # and one division per light instead of three each (the logs were the
+            # costliest operations here). a_c, t_c > 0 are within [~1e-7, ~1e4], so the
+            # products of three stay far from float32's range limits; the rounding of the
+            # extra products is ~4 ulps of the log's argument, i.e. ~4u absolute on the
+            # sum of three terms. On ties (a_c = t_c) max and min both pick t_c (the
+            # second argument), so the generated adjoint passes x_c no gradient there, as
+            # the twin's |.| does.
+            num = F(1.0)
+            den = F(1.0)
             for c in range(3):
-                # log(x + eps) - log(y + eps) as one log of the ratio: half the logs
-                # (the costliest operation here), and no less accurate.
-                s += wp.abs(wp.log((radiance[c] + eps) / (target[row, c, i, j] + eps)))
+                a = radiance[c] + eps
+                t = target[row, c, i, j] + eps
+                num = num * wp.max(a, t)
+                den = den * wp.min(a, t)
+            s += wp.log(num / den)
         partial[b, i, j] = s
 
     return SimpleNamespace(
