@@ -8,10 +8,13 @@ and loss live in ``estimator.model`` and ``estimator.losses``; checkpoints, the 
 the schedule and the command line in ``training``. This file only wires them: the data,
 the step, resume and ``--init-from``, the export.
 
-Each step draws one view count N uniform in [min_views, max_views] for the whole batch; the views
-are view 0 (the flash photo, always) plus N - 1 of the group's other views at random.
-Batches, view subsets and loss lights come from generators seeded by (seed, step), so a
-resumed run sees exactly the data it would have seen without the interruption.
+The data is ``--domain paper`` (the paper's clean renders, ``RenderedGroups``) or
+``capture`` (``DomainGroups``: capture-domain geometry and photometric randomisation,
+optionally with real textures). Each step draws one view count N uniform in
+[min_views, max_views] for the whole batch; the views are view 0 (the flash photo,
+always) plus N - 1 of the group's other views at random. Batches, view subsets and loss
+lights come from generators seeded by (seed, step), so a resumed run sees exactly the
+data it would have seen without the interruption.
 """
 
 from __future__ import annotations
@@ -24,12 +27,14 @@ from pathlib import Path
 from typing import Literal
 
 import torch
-from torch.utils.data import DataLoader, Sampler
+from torch.utils.data import DataLoader, Dataset, Sampler
 
 from estimator.config import TRAINING_DEFAULTS
 from estimator.losses import MAP_WEIGHT, NORMAL_LOSSES, NORMAL_WEIGHT, RENDER_WEIGHT, estimator_loss
 from estimator.model import SVBRDFEstimator
+from materials.capture_domain import CaptureDomain
 from materials.dataset import TRAIN_SEEDS, GroupConfig, RenderedGroups
+from materials.domain_groups import REAL_DEV_TRAIN, DomainGroups
 from materials.io.atomic import atomic_file, atomic_folder
 from materials.types import Material
 from training.checkpoint import MODEL_DIR, latest_checkpoint, load_checkpoint, read_trainer_state
@@ -38,7 +43,19 @@ from training.loop import Loop, resumed_line
 from training.schedule import warmup_cosine
 from training.seeding import step_generator
 
-__all__ = ["TrainConfig", "EstimatorModelConfig", "main", "select_views", "StepBatchSampler", "parse_args"]
+__all__ = [
+    "TrainConfig",
+    "EstimatorModelConfig",
+    "main",
+    "select_views",
+    "StepBatchSampler",
+    "parse_args",
+    "training_data",
+    "DOMAINS",
+]
+
+#: ``TrainConfig.domain``'s values.
+DOMAINS = ("paper", "capture")
 
 #: The architecture: ``SVBRDFEstimator``'s constructor arguments (its signature is the
 #: only copy of their defaults), with what a new run builds (``TRAINING_DEFAULTS``: the
@@ -71,6 +88,21 @@ class TrainConfig:
         max_views: the largest N (views of a group; view 0 is the flash photo).
         min_views: the smallest N (1: every count; 8 with ``max_views`` 8: always all
             views, e.g. a phase that trains what only several views reveal).
+        domain: the training data. ``paper``: ``RenderedGroups`` (the paper's clean
+            renders: camera at height 4-8, no falloff, unclipped linear images; the stream
+            of every run before this option). ``capture``: ``DomainGroups`` with
+            ``CaptureDomain()`` (camera heights and offsets, flash falloff, exposure and
+            white balance, noise, clipped highlights, 8-bit and JPEG, crops of the plane;
+            ``materials.capture_domain``). The loss does not depend on the inputs'
+            lighting, so only the data changes.
+        textures: with ``capture``, a folder holding real-texture material folders
+            (``load_texture_folder``), of which the ``REAL_DEV_TRAIN`` ones are used (e.g.
+            ``../shared/data/real-dev/materials``; ``REAL_DEV_VALIDATION`` stays held
+            out); none: procedural materials only.
+        p_texture: with ``capture`` and ``textures``, the probability that an item is a
+            crop of a real texture.
+        p_mix: with ``capture``, the probability that a procedural item blends two
+            procedural materials.
         map_weight, render_weight, normal_weight: loss weights (``estimator.losses``).
         normal_loss: ``mse`` or ``l1``, the normal map's term (``estimator.losses``).
         init_from: a saved estimator folder (``save_pretrained``) whose weights start the
@@ -104,6 +136,10 @@ class TrainConfig:
     min_lr_ratio: float = 0.1
     max_views: int = 8
     min_views: int = 1
+    domain: Literal["paper", "capture"] = "paper"
+    textures: str | None = None
+    p_texture: float = 0.25
+    p_mix: float = 0.0
     map_weight: float = MAP_WEIGHT
     render_weight: float = RENDER_WEIGHT
     normal_weight: float = NORMAL_WEIGHT
@@ -128,6 +164,12 @@ class TrainConfig:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.normal_loss not in NORMAL_LOSSES:
             raise ValueError(f"normal_loss must be one of {NORMAL_LOSSES}, got {self.normal_loss!r}")
+        if self.domain not in DOMAINS:
+            raise ValueError(f"domain must be one of {DOMAINS}, got {self.domain!r}")
+        if self.domain == "paper" and self.textures is not None:
+            raise ValueError("textures needs domain='capture' (the paper's data has procedural materials only)")
+        if not 0 <= self.p_texture <= 1 or not 0 <= self.p_mix <= 1:
+            raise ValueError(f"p_texture and p_mix must be in [0, 1], got {self.p_texture}, {self.p_mix}")
         if self.min_views > self.max_views:
             raise ValueError(f"min_views ({self.min_views}) must not exceed max_views ({self.max_views})")
         factor = 2 ** (len(self.model.channel_mults) - 1)
@@ -141,6 +183,21 @@ class TrainConfig:
 
     def to_dict(self) -> dict:
         return to_dict(self)
+
+
+def training_data(cfg: TrainConfig) -> Dataset:
+    """The training groups of ``cfg.domain`` over ``TRAIN_SEEDS`` (``TrainConfig.domain``)."""
+    if cfg.domain == "paper":
+        return RenderedGroups(TRAIN_SEEDS, cfg.group_config())
+    textures = []
+    if cfg.textures is not None:
+        textures = [Path(cfg.textures) / name for name in REAL_DEV_TRAIN]
+        missing = [str(t) for t in textures if not t.is_dir()]
+        if missing:
+            raise FileNotFoundError(f"textures: {cfg.textures} lacks the training materials {missing}")
+    return DomainGroups(
+        TRAIN_SEEDS, cfg.group_config(), CaptureDomain(), textures=textures, p_texture=cfg.p_texture, p_mix=cfg.p_mix
+    )
 
 
 def select_views(total: int, max_views: int, generator: torch.Generator, min_views: int = 1) -> list[int]:
@@ -206,6 +263,14 @@ def _resume_model(folder: Path, cfg: TrainConfig, print_fn) -> SVBRDFEstimator:
         raise ValueError(
             f"{folder}: checkpoint architecture differs from the requested one (requested, saved): {changed}"
         )
+    for name in ("domain", "textures", "p_texture", "p_mix"):
+        # Checkpoints from before these options trained on the paper's data.
+        saved = saved_cfg.get(name, getattr(TrainConfig, name))
+        if saved != getattr(cfg, name):
+            raise ValueError(
+                f"{folder}: the checkpoint was trained with {name}={saved!r}, the run asks for {getattr(cfg, name)!r}; "
+                f"resume with the same data, or start a fresh --ckpt-dir with --init-from"
+            )
     if saved_cfg.get("normal_loss", cfg.normal_loss) != cfg.normal_loss:
         print_fn(
             f"warning: {folder} was trained with --normal-loss {saved_cfg['normal_loss']}; continuing with {cfg.normal_loss}"
@@ -239,7 +304,7 @@ def main(cfg: TrainConfig) -> Path:
         start, history, elapsed = state.step, state.history, state.elapsed_s
         accelerator.print(resumed_line(state))
 
-    dataset = RenderedGroups(TRAIN_SEEDS, cfg.group_config())
+    dataset = training_data(cfg)
     loader = DataLoader(
         dataset, batch_sampler=StepBatchSampler(len(dataset), cfg.batch_size, cfg.seed, start, cfg.steps), num_workers=0
     )

@@ -5,16 +5,30 @@ from __future__ import annotations
 import dataclasses
 import json
 
+import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
+from PIL import Image
 from safetensors.torch import load_file
 
 from estimator import SVBRDFEstimator, estimator_loss
 from estimator.config import TRAINING_DEFAULTS
 from estimator.losses import NORMAL_MSE_SCALE
-from estimator.train import EstimatorModelConfig, StepBatchSampler, TrainConfig, main, parse_args, select_views
+from estimator.train import (
+    EstimatorModelConfig,
+    StepBatchSampler,
+    TrainConfig,
+    main,
+    parse_args,
+    select_views,
+    training_data,
+)
+from kernels.tonemap import srgb_encode
 from materials.dataset import TRAIN_SEEDS, GroupConfig, RenderedGroups
+from materials.domain_groups import REAL_DEV_TRAIN, REAL_DEV_VALIDATION, DomainGroups
+from materials.io.encoding import encode_normal
+from materials.procedural import generate
 from materials.types import Material
 from training.checkpoint import flatten_state, latest_checkpoint, unflatten_state
 from training.config import config_of
@@ -280,3 +294,75 @@ def test_normal_mse_does_not_settle_on_the_flat_median():
         found[loss_name] = float(guess.detach())
     assert abs(found["l1"]) < MEDIAN_TOLERANCE
     assert abs(found["mse"] - 0.2 * 0.3) < MEDIAN_TOLERANCE
+
+
+def _texture_folders(root, names, size: int = 48):
+    """Texture material folders (``load_texture_folder``'s files) named ``names`` under
+    ``root``, made from procedural materials; returns ``root``."""
+    for k, name in enumerate(names):
+        folder = root / name
+        folder.mkdir(parents=True)
+        m = generate(100 + k, size=size)
+        for file, chw in (
+            ("diffuse", srgb_encode(m.diffuse)),
+            ("normal", encode_normal(m.normal)),
+            ("roughness", m.roughness.expand(3, -1, -1)),
+            ("specular", srgb_encode(m.specular)),
+        ):
+            codes = (chw.clamp(0, 1) * 255).round().to(torch.uint8).permute(1, 2, 0).numpy()
+            Image.fromarray(np.ascontiguousarray(codes)).save(folder / f"{file}.png")
+    return root
+
+
+def test_paper_domain_is_the_rendered_groups_stream(tmp_path):
+    """``--domain paper`` (the default) trains on exactly the data of every earlier run."""
+    cfg = _tiny_train_config(tmp_path)
+    assert cfg.domain == "paper" and parse_args([]).domain == "paper"
+    data = training_data(cfg)
+    assert type(data) is RenderedGroups
+    reference = RenderedGroups(TRAIN_SEEDS, GroupConfig(size=32, views=4, source_size=64, seed=0))
+    for i in (0, 7):
+        a, b = data[i], reference[i]
+        assert a.keys() == b.keys()
+        for key in ("images", "light_pos", "camera_pos", "maps"):
+            assert torch.equal(a[key], b[key]), key
+
+
+def test_capture_domain_data_uses_only_the_training_textures(tmp_path):
+    root = _texture_folders(tmp_path / "tex", (*REAL_DEV_TRAIN, *REAL_DEV_VALIDATION), size=40)
+    cfg = _tiny_train_config(tmp_path, domain="capture", textures=str(root), p_texture=0.5, p_mix=0.3)
+    data = training_data(cfg)
+    assert type(data) is DomainGroups
+    assert data.texture_names == list(REAL_DEV_TRAIN)  # the validation materials stay out
+    assert (data.p_texture, data.p_mix) == (0.5, 0.3)
+    assert data.config == cfg.group_config()
+    assert type(training_data(_tiny_train_config(tmp_path, domain="capture"))) is DomainGroups
+    with pytest.raises(FileNotFoundError, match="training materials"):
+        training_data(_tiny_train_config(tmp_path, domain="capture", textures=str(tmp_path / "nowhere")))
+    with pytest.raises(ValueError, match="domain"):
+        TrainConfig(domain="photos")
+    with pytest.raises(ValueError, match="capture"):
+        TrainConfig(textures=str(root))  # textures only mean something in the capture domain
+    with pytest.raises(ValueError, match="p_texture"):
+        TrainConfig(domain="capture", p_mix=1.5)
+    cli = parse_args(["--domain", "capture", "--textures", str(root), "--p-texture", "0.25", "--p-mix", "0.2"])
+    assert (cli.domain, cli.textures, cli.p_texture, cli.p_mix) == ("capture", str(root), 0.25, 0.2)
+
+
+def test_capture_domain_trains_and_resumes_exactly(tmp_path):
+    root = _texture_folders(tmp_path / "tex", REAL_DEV_TRAIN, size=40)
+    capture = dict(domain="capture", textures=str(root), p_texture=0.5, p_mix=0.5)
+    straight = main(_tiny_train_config(tmp_path / "a", steps=2, ckpt_every=1, **capture))
+    main(_tiny_train_config(tmp_path / "b", steps=1, ckpt_every=1, **capture))
+    resumed = main(_tiny_train_config(tmp_path / "b", steps=2, ckpt_every=1, **capture))
+    a = load_file(str(next(straight.glob("*.safetensors"))))
+    b = load_file(str(next(resumed.glob("*.safetensors"))))
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], atol=0, rtol=0, msg=k)
+    paper = load_file(str(next(main(_tiny_train_config(tmp_path / "p", steps=2)).glob("*.safetensors"))))
+    assert any(not torch.equal(a[k], paper[k]) for k in a)  # the data did change
+    # A checkpoint resumes only with the data it was trained on.
+    with pytest.raises(ValueError, match="domain"):
+        main(_tiny_train_config(tmp_path / "b", steps=3))
+    with pytest.raises(ValueError, match="p_mix"):
+        main(_tiny_train_config(tmp_path / "b", steps=3, **{**capture, "p_mix": 0.1}))
