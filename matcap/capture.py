@@ -128,7 +128,7 @@ MAX_SIDE = 2048
 #: Refinement defaults. Steps and the weight of a relit view (the photo weighs 1) were
 #: chosen by measurement (README "Capture a material", table "relit view weight").
 DEFAULT_REFINE_STEPS = 100
-DEFAULT_RELIT_WEIGHT = 0.5
+DEFAULT_RELIT_WEIGHT = 0.1
 #: Adam rate of the per-pixel logits and normal slopes (``estimator.refine.refine_maps``'s).
 REFINE_LR = 1e-2
 #: Lights of the re-renders (after the flash): the 7 evaluation lights.
@@ -164,6 +164,10 @@ class CaptureConfig:
         max_side: downscale a photo whose long side exceeds it (None: refuse photos
             above ``MAX_SIDE``); at most ``MAX_SIDE``.
         seed: seed of the relighter's sampling.
+        clip_aware: in the refinement, a pixel clipped at the top of the photo's range
+            (8-bit PNG / JPEG: 1) or of the relighter's (1, times the falloff factor)
+            counts as "at least this bright" (``refine_full_resolution``); EXR photos
+            are taken as unclipped.
     """
 
     relit: int = len(EVAL_LIGHTS)
@@ -179,6 +183,7 @@ class CaptureConfig:
     working_size: int = WORKING_SIZE
     max_side: int | None = None
     seed: int = 0
+    clip_aware: bool = True
 
     def __post_init__(self) -> None:
         def need(ok: bool, message: str) -> None:
@@ -537,11 +542,27 @@ def relight_views(
 
 
 # ---------------------------------------------------------------------- refinement
-def _masked_log_l1(x: torch.Tensor, y: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """``kernels.log_l1_loss`` over the pixels where ``mask`` ([h, w] bool) is True."""
+def _masked_log_l1(
+    x: torch.Tensor, y: torch.Tensor, mask: torch.Tensor, ceiling: torch.Tensor | float | None = None
+) -> torch.Tensor:
+    """``kernels.log_l1_loss`` over the pixels where ``mask`` ([h, w] bool) is True.
+
+    ``ceiling``: the level at which ``y`` was clipped (a scalar or a tensor broadcasting to
+    ``y``), or None. A pixel of ``y`` at its ceiling only says "at least this bright" (the
+    flash highlight of an 8-bit photo, a relighter's output capped at 1), so there the
+    render is compared as ``min(x, ceiling)``: a brighter render costs nothing.
+    """
+    if ceiling is not None:
+        clipped = y >= ceiling - CLIP_TOL
+        x = torch.where(clipped, torch.minimum(x, torch.as_tensor(ceiling, dtype=x.dtype)), x)
     m = mask.to(x.dtype)
     count = int(mask.sum()) * x.shape[-3]
     return kernels.log_l1_loss(x * m, y * m) * (x.numel() / count)
+
+
+#: A target within this of its ceiling counts as clipped. Decoded 8-bit photos and the
+#: relighters' capped outputs sit exactly at it; the next 8-bit code is 0.009 below 1.
+CLIP_TOL = 1e-6
 
 
 def _to_parameters(material: Material) -> list[torch.Tensor]:
@@ -594,6 +615,8 @@ def refine_full_resolution(
     *,
     photo_weight: float = 1.0,
     relit_weight: float = DEFAULT_RELIT_WEIGHT,
+    photo_ceiling: float | None = None,
+    relit_ceiling: torch.Tensor | float | None = None,
     steps: int = DEFAULT_REFINE_STEPS,
     lr: float = REFINE_LR,
     tol: float = DEFAULT_TOL,
@@ -618,6 +641,9 @@ def refine_full_resolution(
         photo: ``[3, S, S]`` linear radiance; photo_mask: ``[S, S]`` bool (True: real pixel).
         relit: ``[K, 3, s, s]`` (K may be 0; S a multiple of s); relit_mask: ``[s, s]`` bool.
         light_pos: ``[1 + K, 3]`` (row 0 the flash); camera_pos: ``[3]``.
+        photo_ceiling, relit_ceiling: where the photo / the relit views were clipped
+            (``_masked_log_l1``): None (not clipped), a number, or for the relit views a
+            tensor broadcasting to ``[K, 3, s, s]``.
         render_kwargs: ``kernels.render`` keywords (preset, falloff, intensity).
 
     Returns:
@@ -646,10 +672,11 @@ def refine_full_resolution(
         loss = images.new_zeros(())
         for image, v in zip(images, chunk):
             if v == 0:
-                loss = loss + _masked_log_l1(image, photo, photo_mask) * (weights[v] / total)
+                loss = loss + _masked_log_l1(image, photo, photo_mask, photo_ceiling) * (weights[v] / total)
             else:
                 small = area_downsample(image, relit_size)
-                loss = loss + _masked_log_l1(small, relit[v - 1], relit_mask) * (weights[v] / total)
+                ceiling = relit_ceiling[v - 1] if isinstance(relit_ceiling, torch.Tensor) else relit_ceiling
+                loss = loss + _masked_log_l1(small, relit[v - 1], relit_mask, ceiling) * (weights[v] / total)
         return loss
 
     params = _to_parameters(material)
@@ -907,15 +934,21 @@ class CapturePipeline:
         #    views (compared at their resolution), padded pixels masked out.
         with stage("6 refine"):
             init = _upsample(estimate, side)
-            targets = relit
+            # The relighters' outputs are capped at 1 (the tone map's range): their
+            # ceiling moves with the falloff conversion.
+            targets, ceiling = relit, torch.ones(k, 1, 1, 1)
             if cfg.falloff == "inverse-square" and k:
-                targets = relit * falloff_factor(scene.relit_light_pos, height, ws, frame.plane_size)
+                ceiling = falloff_factor(scene.relit_light_pos, height, ws, frame.plane_size)
+                targets = relit * ceiling
+            photo_ceiling = 1.0 if photo.format != "exr" else None
             history: list[float] = []
             refined = init
             if cfg.refine_steps:
                 result = refine_full_resolution(
                     init, image, photo_mask, targets, relit_mask, capture.light_pos, camera,
                     photo_weight=cfg.photo_weight, relit_weight=cfg.relit_weight, steps=cfg.refine_steps,
+                    photo_ceiling=photo_ceiling if cfg.clip_aware else None,
+                    relit_ceiling=ceiling if cfg.clip_aware else None,
                     lr=cfg.refine_lr, render_kwargs=scene.render_kwargs, progress=progress,
                 )  # fmt: skip
                 refined, history = result.material, result.history
