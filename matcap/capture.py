@@ -128,7 +128,7 @@ MAX_SIDE = 2048
 #: Refinement defaults. Steps and the weight of a relit view (the photo weighs 1) were
 #: chosen by measurement (README "Capture a material", table "relit view weight").
 DEFAULT_REFINE_STEPS = 100
-DEFAULT_RELIT_WEIGHT = 0.5
+DEFAULT_RELIT_WEIGHT = 0.1
 #: Adam rate of the per-pixel logits and normal slopes (``estimator.refine.refine_maps``'s).
 REFINE_LR = 1e-2
 #: Lights of the re-renders (after the flash): the 7 evaluation lights.
@@ -164,6 +164,10 @@ class CaptureConfig:
         max_side: downscale a photo whose long side exceeds it (None: refuse photos
             above ``MAX_SIDE``); at most ``MAX_SIDE``.
         seed: seed of the relighter's sampling.
+        clip_aware: in the refinement, a pixel clipped at the top of the photo's range
+            (8-bit PNG / JPEG: 1) or of the relighter's (1, times the falloff factor)
+            counts as "at least this bright" (``refine_full_resolution``); EXR photos
+            are taken as unclipped.
     """
 
     relit: int = len(EVAL_LIGHTS)
@@ -179,6 +183,7 @@ class CaptureConfig:
     working_size: int = WORKING_SIZE
     max_side: int | None = None
     seed: int = 0
+    clip_aware: bool = True
 
     def __post_init__(self) -> None:
         def need(ok: bool, message: str) -> None:
@@ -383,9 +388,10 @@ def area_downsample(x: torch.Tensor, size: int) -> torch.Tensor:
         raise ValueError(f"area_downsample needs a square side that is a multiple of {size}, got {tuple(x.shape)}")
     if s == size:
         return x
-    lead = x.shape[:-3]
-    flat = x.reshape(-1, *x.shape[-3:])
-    return F.avg_pool2d(flat, s // size).reshape(*lead, x.shape[-3], size, size)
+    f = s // size
+    # A reshape and a mean: its backward is a broadcast (avg_pool2d's CPU backward cost
+    # 20 ms per 256 px view here, more than the render's).
+    return x.reshape(*x.shape[:-2], size, f, size, f).mean(dim=(-3, -1))
 
 
 def _plane_grid(size: int, plane_size: float, dtype=torch.float32) -> tuple[torch.Tensor, torch.Tensor]:
@@ -537,11 +543,45 @@ def relight_views(
 
 
 # ---------------------------------------------------------------------- refinement
-def _masked_log_l1(x: torch.Tensor, y: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """``kernels.log_l1_loss`` over the pixels where ``mask`` ([h, w] bool) is True."""
-    m = mask.to(x.dtype)
-    count = int(mask.sum()) * x.shape[-3]
-    return kernels.log_l1_loss(x * m, y * m) * (x.numel() / count)
+class _Target:
+    """One view's target, prepared once for the loss of every step (``loss``): the mean
+    ``kernels.log_l1_loss`` over the pixels where ``mask`` ([h, w] bool) is True.
+
+    ``ceiling``: the level at which ``y`` was clipped (a scalar or a tensor broadcasting to
+    ``y``), or None. A pixel of ``y`` at its ceiling only says "at least this bright" (the
+    flash highlight of an 8-bit photo, a relighter's output capped at 1), so there the
+    render is compared as ``min(x, ceiling)``: a brighter render costs nothing.
+    """
+
+    def __init__(self, y: torch.Tensor, mask: torch.Tensor, ceiling: torch.Tensor | float | None = None):
+        self.mask = None if bool(mask.all()) else mask.to(y.dtype)
+        self.scale = mask.numel() / int(mask.sum())  # mean over the masked pixels only
+        self.y = y if self.mask is None else y * self.mask
+        self.clipped, self.ceiling = None, None
+        if ceiling is not None:
+            ceiling = torch.as_tensor(ceiling, dtype=y.dtype)
+            clipped = y >= ceiling - CLIP_TOL
+            if bool(clipped.any()):
+                self.clipped, self.ceiling = clipped, ceiling
+
+    def loss(self, x: torch.Tensor) -> torch.Tensor:
+        if self.clipped is not None:
+            x = torch.where(self.clipped, torch.minimum(x, self.ceiling), x)
+        if self.mask is not None:
+            x = x * self.mask
+        return kernels.log_l1_loss(x, self.y) * self.scale
+
+
+def _masked_log_l1(
+    x: torch.Tensor, y: torch.Tensor, mask: torch.Tensor, ceiling: torch.Tensor | float | None = None
+) -> torch.Tensor:
+    """``_Target(y, mask, ceiling).loss(x)``."""
+    return _Target(y, mask, ceiling).loss(x)
+
+
+#: A target within this of its ceiling counts as clipped. Decoded 8-bit photos and the
+#: relighters' capped outputs sit exactly at it; the next 8-bit code is 0.009 below 1.
+CLIP_TOL = 1e-6
 
 
 def _to_parameters(material: Material) -> list[torch.Tensor]:
@@ -594,6 +634,8 @@ def refine_full_resolution(
     *,
     photo_weight: float = 1.0,
     relit_weight: float = DEFAULT_RELIT_WEIGHT,
+    photo_ceiling: float | None = None,
+    relit_ceiling: torch.Tensor | float | None = None,
     steps: int = DEFAULT_REFINE_STEPS,
     lr: float = REFINE_LR,
     tol: float = DEFAULT_TOL,
@@ -618,6 +660,9 @@ def refine_full_resolution(
         photo: ``[3, S, S]`` linear radiance; photo_mask: ``[S, S]`` bool (True: real pixel).
         relit: ``[K, 3, s, s]`` (K may be 0; S a multiple of s); relit_mask: ``[s, s]`` bool.
         light_pos: ``[1 + K, 3]`` (row 0 the flash); camera_pos: ``[3]``.
+        photo_ceiling, relit_ceiling: where the photo / the relit views were clipped
+            (``_masked_log_l1``): None (not clipped), a number, or for the relit views a
+            tensor broadcasting to ``[K, 3, s, s]``.
         render_kwargs: ``kernels.render`` keywords (preset, falloff, intensity).
 
     Returns:
@@ -639,21 +684,35 @@ def refine_full_resolution(
     camera = camera_pos.float().reshape(1, 1, 3)
     relit_size = relit.shape[-1] if k else side
 
-    chunks = _view_chunks(views, side)
+    # Per chunk of views rendered together: the photo's target (if view 0 is in it) and
+    # one batched target for its relit views (they share one weight).
+    plan = []
+    for chunk in _view_chunks(views, side):
+        rel = [v - 1 for v in chunk if v > 0]
+        ceiling = relit_ceiling[rel] if isinstance(relit_ceiling, torch.Tensor) else relit_ceiling
+        plan.append(
+            (
+                chunk,
+                _Target(photo, photo_mask, photo_ceiling) if chunk[0] == 0 else None,
+                _Target(relit[rel], relit_mask, ceiling) if rel else None,
+                len(rel) * relit_weight / total,
+            )
+        )
 
-    def chunk_loss(maps: tuple[torch.Tensor, ...], chunk: list[int]) -> torch.Tensor:
+    def chunk_loss(maps: tuple[torch.Tensor, ...], step: tuple) -> torch.Tensor:
+        chunk, photo_target, relit_target, relit_share = step
         images = kernels.render(*maps, lights[chunk][None], camera, **render_kwargs)[0]  # [n, 3, S, S]
         loss = images.new_zeros(())
-        for image, v in zip(images, chunk):
-            if v == 0:
-                loss = loss + _masked_log_l1(image, photo, photo_mask) * (weights[v] / total)
-            else:
-                small = area_downsample(image, relit_size)
-                loss = loss + _masked_log_l1(small, relit[v - 1], relit_mask) * (weights[v] / total)
+        if photo_target is not None:
+            loss = loss + photo_target.loss(images[0]) * (photo_weight / total)
+            images = images[1:]
+        if relit_target is not None:
+            loss = loss + relit_target.loss(area_downsample(images, relit_size)) * relit_share
         return loss
 
     params = _to_parameters(material)
-    opt = torch.optim.Adam(params, lr=lr)
+    # fused: one kernel for the whole update (the per-tensor loop cost ~10% of a step).
+    opt = torch.optim.Adam(params, lr=lr, fused=True)
     history: list[float] = []
     best, best_loss = [p.detach().clone() for p in params], float("inf")
 
@@ -661,8 +720,8 @@ def refine_full_resolution(
         maps = _from_parameters(params).map_tensors()
         leaves = tuple(t.detach().requires_grad_(True) for t in maps)
         value = 0.0
-        for chunk in chunks:
-            loss = chunk_loss(leaves, chunk)
+        for step in plan:
+            loss = chunk_loss(leaves, step)
             loss.backward()  # one chunk's graph at a time; the leaves' .grad accumulates
             value += float(loss.detach())
         torch.autograd.backward(list(maps), [t.grad for t in leaves])
@@ -683,7 +742,7 @@ def refine_full_resolution(
     with torch.no_grad():
         if steps:
             maps = _from_parameters(params).map_tensors()
-            if sum(float(chunk_loss(maps, chunk)) for chunk in chunks) >= best_loss:
+            if sum(float(chunk_loss(maps, step)) for step in plan) >= best_loss:
                 for p, b in zip(params, best):
                     p.copy_(b)
         return RefineResult(_from_parameters(params), history, 0)
@@ -907,15 +966,21 @@ class CapturePipeline:
         #    views (compared at their resolution), padded pixels masked out.
         with stage("6 refine"):
             init = _upsample(estimate, side)
-            targets = relit
+            # The relighters' outputs are capped at 1 (the tone map's range): their
+            # ceiling moves with the falloff conversion.
+            targets, ceiling = relit, torch.ones(k, 1, 1, 1)
             if cfg.falloff == "inverse-square" and k:
-                targets = relit * falloff_factor(scene.relit_light_pos, height, ws, frame.plane_size)
+                ceiling = falloff_factor(scene.relit_light_pos, height, ws, frame.plane_size)
+                targets = relit * ceiling
+            photo_ceiling = 1.0 if photo.format != "exr" else None
             history: list[float] = []
             refined = init
             if cfg.refine_steps:
                 result = refine_full_resolution(
                     init, image, photo_mask, targets, relit_mask, capture.light_pos, camera,
                     photo_weight=cfg.photo_weight, relit_weight=cfg.relit_weight, steps=cfg.refine_steps,
+                    photo_ceiling=photo_ceiling if cfg.clip_aware else None,
+                    relit_ceiling=ceiling if cfg.clip_aware else None,
                     lr=cfg.refine_lr, render_kwargs=scene.render_kwargs, progress=progress,
                 )  # fmt: skip
                 refined, history = result.material, result.history

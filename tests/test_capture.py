@@ -144,6 +144,23 @@ def test_relit_views_are_compared_at_their_resolution(tiny_estimator):
     assert result.history[0] < 1e-6
 
 
+def test_clipped_pixels_are_lower_bounds():
+    # A target at its ceiling (an 8-bit photo's 1.0) only says "at least this bright": a
+    # brighter render there costs nothing, a darker one costs as usual; unclipped pixels
+    # are unaffected.
+    from matcap.capture import _masked_log_l1
+
+    target = torch.tensor([[[1.0, 0.5]]]).expand(3, 1, 2)
+    mask = torch.ones(1, 2, dtype=torch.bool)
+    brighter = torch.tensor([[[3.0, 0.5]]]).expand(3, 1, 2)
+    darker = torch.tensor([[[0.5, 0.5]]]).expand(3, 1, 2)
+    assert float(_masked_log_l1(brighter, target, mask, 1.0)) == 0.0
+    assert float(_masked_log_l1(brighter, target, mask, None)) > 0.0
+    assert float(_masked_log_l1(darker, target, mask, 1.0)) == pytest.approx(
+        float(_masked_log_l1(darker, target, mask))
+    )
+
+
 def test_relit_zero_equals_the_estimator_and_refinement_by_hand(tiny_estimator):
     photo = smooth_photo(96, 80, seed=3)
     config = CaptureConfig(relit=0, refine_steps=4, falloff="none")
@@ -162,9 +179,9 @@ def test_relit_zero_equals_the_estimator_and_refinement_by_hand(tiny_estimator):
     init = init.__class__(
         init.diffuse, torch.nn.functional.normalize(init.normal, dim=1), init.roughness, init.specular
     )
-    result = refine_full_resolution(
-        init, image, frame.valid_mask(), torch.zeros(0, 3, 64, 64), frame.valid_mask(), camera[None], camera, steps=4
-    )
+    empty = torch.zeros(0, 3, 64, 64)
+    mask = frame.valid_mask()
+    result = refine_full_resolution(init, image, mask, empty, mask, camera[None], camera, photo_ceiling=1.0, steps=4)
     by_hand = frame.material_to_photo(result.material[0])
     assert out.refine_history == pytest.approx(result.history, rel=SAME_MATH_TOL)
     for name, t in by_hand.maps().items():
