@@ -40,8 +40,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--estimator", type=Path, default=None, help="estimator folder (default: the shipped one)")
     p.add_argument("--steps", type=int, default=None, help="diffusion sampling steps (default 1, its best setting)")
     p.add_argument("--samples", type=int, default=None, help="samples per relit view; 2+ adds a confidence map")
-    p.add_argument("--refine", type=int, default=None, metavar="STEPS", help="full-resolution refinement steps")
-    p.add_argument("--relit-weight", type=float, default=None, help="loss weight of each relit view (photo: 1)")
+    p.add_argument(
+        "--refine", type=int, default=None, metavar="STEPS", help="full-resolution refinement steps (default 100)"
+    )
+    p.add_argument(
+        "--relit-weight",
+        type=float,
+        default=None,
+        help="refinement weight of each relit view; the photo's is 1 (default 0.1)",
+    )
     p.add_argument(
         "--falloff",
         choices=("none", "inverse-square"),

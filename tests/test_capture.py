@@ -416,10 +416,12 @@ def test_cli_interrupt_leaves_nothing_half_written(tmp_path, estimator_folder, m
 
 
 def test_help_numbers_match_the_code(capsys):
-    from matcap.capture import DEFAULT_RELIGHT_STEPS
+    from matcap.capture import DEFAULT_REFINE_STEPS, DEFAULT_RELIGHT_STEPS, DEFAULT_RELIT_WEIGHT
 
     with pytest.raises(SystemExit):
         main(["capture", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert f"(default {DEFAULT_RELIGHT_STEPS}, its best setting)" in text
+    assert f"refinement steps (default {DEFAULT_REFINE_STEPS})" in text
+    assert f"the photo's is 1 (default {DEFAULT_RELIT_WEIGHT:g})" in text
     assert f"at most {MAX_SIDE}" in text and f"relit views, 0-{len(EVAL_LIGHTS)}" in text

@@ -1,0 +1,134 @@
+"""Run real flash photos through the capture pipeline and make the README's picture.
+
+For each photo: ``CapturePipeline`` with its defaults (7 relit views) and with the photo
+alone (``relit=0``), both saved under ``--work`` (the folders ``relight capture`` writes).
+The picture has one row per photo (``--figure``, the first ones): the photo, two relit
+views, the diffuse map from the photo alone, the diffuse, normal, roughness and
+specular maps from photo + relit views, and a re-render under a light off to the side.
+
+The flash-highlight check, ``highlight_ratio``: the diffuse map's mean luminance in the
+disc of radius 0.5 (plane units, side 4) around the point under the camera, divided by
+its mean in the ring from 0.75 to 1.25 around it. The flash highlight sits in the disc;
+a diffuse map that has the highlight baked in is brighter there (ratio above 1), a map
+free of it is as bright as the ring (ratio near 1; texture moves it either way).
+
+    python scripts/capture_real_photos.py ../shared/data/real-dev/photos/*/*.png \\
+        --work runs/capture_real --figure 2 --out results/capture_real_photos/capture_real_photos.png
+
+Prints a table and writes ``capture_real_photos.json`` next to ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import torch
+
+DEFAULT_OUT = Path(__file__).resolve().parents[1] / "results" / "capture_real_photos" / "capture_real_photos.png"
+#: Tile side of the picture, pixels.
+TILE = 128
+#: Disc and ring of ``highlight_ratio``, plane units (plane side 4): the disc is
+#: ``estimator.evaluate.HIGHLIGHT_RADIUS``; the ring is close enough to see the same
+#: texture, far enough to be outside a flash highlight of roughness <~0.4.
+DISC, RING = 0.5, (0.75, 1.25)
+
+
+def highlight_ratio(diffuse: torch.Tensor, frame, camera: torch.Tensor) -> float:
+    """Mean luminance of ``diffuse [3, H, W]`` (photo grid) in the disc over the ring."""
+    h, w = diffuse.shape[-2:]
+    rows, cols = torch.meshgrid(
+        torch.arange(h, dtype=torch.float32), torch.arange(w, dtype=torch.float32), indexing="ij"
+    )
+    x, y = frame.pixel_to_plane(rows, cols)
+    r = torch.hypot(x - camera[0], y - camera[1])
+    lum = (diffuse * torch.tensor([0.2126, 0.7152, 0.0722])[:, None, None]).sum(0)
+    return float(lum[r <= DISC].mean() / lum[(r >= RING[0]) & (r <= RING[1])].mean())
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("photos", nargs="+", type=Path)
+    parser.add_argument("--work", type=Path, required=True, help="folder for the capture outputs")
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="the picture (PNG)")
+    parser.add_argument("--figure", type=int, default=2, help="photos (rows) in the picture")
+    parser.add_argument("--threads", type=int, default=2)
+    args = parser.parse_args(argv)
+
+    import kernels
+    from kernels.tonemap import srgb_encode
+    from matcap.capture import CapturePipeline
+    from matcap.outputs import contact_sheet
+    from materials.io import read_photo, write_png
+    from materials.io.encoding import chw_to_hwc, encode_normal
+
+    torch.set_num_threads(args.threads)
+    pipeline = CapturePipeline.from_pretrained()
+    rows, records = [], []
+    side_light = torch.tensor([[3.0, 1.0, 4.0]])
+
+    def tile(x: torch.Tensor) -> torch.Tensor:
+        x = x.float()
+        if x.shape[0] == 1:
+            x = x.expand(3, -1, -1)
+        return torch.nn.functional.interpolate(x[None], size=(TILE, TILE), mode="area")[0].clamp(0, 1)
+
+    for path in args.photos:
+        photo = read_photo(path)
+        start = time.perf_counter()
+        with_relit = pipeline(photo)
+        seconds = time.perf_counter() - start
+        alone = pipeline(photo, config=replace(pipeline.config, relit=0))
+        name = path.stem
+        with_relit.save(args.work / name, overwrite=True)
+        alone.save(args.work / f"{name}_alone", overwrite=True)
+        camera = with_relit.scene.camera_pos
+        record = {
+            "photo": f"{path.parent.name}/{path.name}",
+            "size": list(photo.size),
+            "seconds": round(seconds, 1),
+            "highlight_ratio_alone": round(highlight_ratio(alone.material.diffuse, alone.frame, camera), 3),
+            "highlight_ratio_relit": round(highlight_ratio(with_relit.material.diffuse, with_relit.frame, camera), 3),
+            "highlight_ratio_photo": round(highlight_ratio(photo.image, with_relit.frame, camera), 3),
+        }
+        records.append(record)
+        print(json.dumps(record), file=sys.stderr, flush=True)
+        if len(rows) < args.figure:
+            m = with_relit.material
+            render = kernels.render(
+                *(t[None] for t in m.map_tensors()), side_light[None], camera, **with_relit.scene.render_kwargs
+            )
+            rows.append(
+                torch.stack(
+                    [
+                        tile(kernels.tonemap(photo.image)),
+                        tile(kernels.tonemap(with_relit.relit[0])),
+                        tile(kernels.tonemap(with_relit.relit[5])),
+                        tile(srgb_encode(alone.material.diffuse)),
+                        tile(srgb_encode(m.diffuse)),
+                        tile(encode_normal(m.normal)),
+                        tile(m.roughness),
+                        tile(srgb_encode(m.specular)),
+                        tile(kernels.tonemap(render[0, 0])),
+                    ]
+                )
+            )
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    write_png(args.out, chw_to_hwc(contact_sheet(torch.cat(rows), columns=rows[0].shape[0])))
+    (args.out.parent / "capture_real_photos.json").write_text(json.dumps(records, indent=2) + "\n")
+    print("| photo | size | s (7 relit) | diffuse disc/ring, photo alone | with 7 relit | photo itself |")
+    print("|---|---|---|---|---|---|")
+    for r in records:
+        print(
+            f"| {r['photo']} | {r['size'][1]}x{r['size'][0]} | {r['seconds']} | {r['highlight_ratio_alone']} | "
+            f"{r['highlight_ratio_relit']} | {r['highlight_ratio_photo']} |"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
