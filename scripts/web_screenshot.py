@@ -23,21 +23,11 @@ import urllib.request
 from collections.abc import Sequence
 from pathlib import Path
 
+from matcap.web.browser import CHROMIUM_ARGS
+
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = REPO / "results" / "webapp" / "screenshot.png"
 CHROMIUM = "/usr/bin/chromium"
-#: The browser tests' flags (tests/web/conftest.py): WebGL2 through SwiftShader.
-CHROMIUM_ARGS = [
-    "--headless=new",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--use-gl=swiftshader",
-    "--enable-unsafe-swiftshader",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
 #: Seconds the capture may take (a default capture of a 128 px photo on a CPU).
 CAPTURE_TIMEOUT_S = 900
 
@@ -81,7 +71,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 except OSError:
                     time.sleep(0.2)
             with sync_playwright() as pw:
-                browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
+                browser = pw.chromium.launch(executable_path=CHROMIUM, args=list(CHROMIUM_ARGS), headless=True)
                 page = browser.new_page(viewport={"width": 1280, "height": 900})
                 page.goto(url)
                 page.wait_for_selector("#relighter option", state="attached")

@@ -20,22 +20,11 @@ from pathlib import Path
 
 import pytest
 
+from matcap.web.browser import CHROMIUM_ARGS
+
 REPO = Path(__file__).resolve().parents[2]
 #: Debian's chromium first, then other usual names.
 CHROMIUM_CANDIDATES = ("/usr/bin/chromium", "/usr/bin/chromium-browser", "/usr/bin/google-chrome")
-#: Headless Chromium without a GPU: WebGL2 through SwiftShader (software GL), which
-#: recent Chromium enables only with --enable-unsafe-swiftshader; no network side traffic.
-CHROMIUM_ARGS = [
-    "--headless=new",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--use-gl=swiftshader",
-    "--enable-unsafe-swiftshader",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
 #: Seconds a server gets to answer its first request (imports torch and the app).
 SERVER_START_S = 120
 #: Upload limit of the test server, MB: small, so the too-large test sends little.
@@ -164,7 +153,7 @@ def browser():
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as pw:
-        chromium = pw.chromium.launch(executable_path=path, args=CHROMIUM_ARGS, headless=True)
+        chromium = pw.chromium.launch(executable_path=path, args=list(CHROMIUM_ARGS), headless=True)
         yield chromium
         chromium.close()
 
