@@ -103,6 +103,9 @@ class TrainConfig:
             crop of a real texture.
         p_mix: with ``capture``, the probability that a procedural item blends two
             procedural materials.
+        p_paper: with ``capture``, the probability that an item is rendered in the
+            paper's clean setup instead (``DomainGroups``' ``p_paper``): keeps the clean,
+            unclipped inputs a capture-only fine-tune forgets.
         map_weight, render_weight, normal_weight: loss weights (``estimator.losses``).
         normal_loss: ``mse`` or ``l1``, the normal map's term (``estimator.losses``).
         init_from: a saved estimator folder (``save_pretrained``) whose weights start the
@@ -140,6 +143,7 @@ class TrainConfig:
     textures: str | None = None
     p_texture: float = 0.25
     p_mix: float = 0.0
+    p_paper: float = 0.0
     map_weight: float = MAP_WEIGHT
     render_weight: float = RENDER_WEIGHT
     normal_weight: float = NORMAL_WEIGHT
@@ -168,8 +172,9 @@ class TrainConfig:
             raise ValueError(f"domain must be one of {DOMAINS}, got {self.domain!r}")
         if self.domain == "paper" and self.textures is not None:
             raise ValueError("textures needs domain='capture' (the paper's data has procedural materials only)")
-        if not 0 <= self.p_texture <= 1 or not 0 <= self.p_mix <= 1:
-            raise ValueError(f"p_texture and p_mix must be in [0, 1], got {self.p_texture}, {self.p_mix}")
+        for name in ("p_texture", "p_mix", "p_paper"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
         if self.min_views > self.max_views:
             raise ValueError(f"min_views ({self.min_views}) must not exceed max_views ({self.max_views})")
         factor = 2 ** (len(self.model.channel_mults) - 1)
@@ -196,7 +201,13 @@ def training_data(cfg: TrainConfig) -> Dataset:
         if missing:
             raise FileNotFoundError(f"textures: {cfg.textures} lacks the training materials {missing}")
     return DomainGroups(
-        TRAIN_SEEDS, cfg.group_config(), CaptureDomain(), textures=textures, p_texture=cfg.p_texture, p_mix=cfg.p_mix
+        TRAIN_SEEDS,
+        cfg.group_config(),
+        CaptureDomain(),
+        textures=textures,
+        p_texture=cfg.p_texture,
+        p_mix=cfg.p_mix,
+        p_paper=cfg.p_paper,
     )
 
 
@@ -263,7 +274,7 @@ def _resume_model(folder: Path, cfg: TrainConfig, print_fn) -> SVBRDFEstimator:
         raise ValueError(
             f"{folder}: checkpoint architecture differs from the requested one (requested, saved): {changed}"
         )
-    for name in ("domain", "textures", "p_texture", "p_mix"):
+    for name in ("domain", "textures", "p_texture", "p_mix", "p_paper"):
         # Checkpoints from before these options trained on the paper's data.
         saved = saved_cfg.get(name, getattr(TrainConfig, name))
         if saved != getattr(cfg, name):
