@@ -36,6 +36,7 @@ from materials.capture_domain import CaptureDomain
 from materials.dataset import TRAIN_SEEDS, GroupConfig, RenderedGroups
 from materials.domain_groups import REAL_DEV_TRAIN, DomainGroups
 from materials.io.atomic import atomic_file, atomic_folder
+from materials.relit_pool import RelitMixedGroups
 from materials.types import Material
 from training.checkpoint import MODEL_DIR, latest_checkpoint, load_checkpoint, read_trainer_state
 from training.config import config_of, differences, from_dict, model_config, parse, to_dict
@@ -106,6 +107,13 @@ class TrainConfig:
         p_paper: with ``capture``, the probability that an item is rendered in the
             paper's clean setup instead (``DomainGroups``' ``p_paper``): keeps the clean,
             unclipped inputs a capture-only fine-tune forgets.
+        relit_pool: with ``paper``, a relit pool file (``materials.relit_pool``,
+            ``scripts/make_relit_pool.py``): a share ``p_relit`` of the items have views
+            1.. made by a relighter instead of rendered, so the estimator learns what
+            relit views are worth (issue 15, item 5). The stream is the pool's
+            ``GroupConfig`` (its ``size`` and ``views`` must equal ``size`` and
+            ``max_views``).
+        p_relit: with ``relit_pool``, the share of relit items.
         map_weight, render_weight, normal_weight: loss weights (``estimator.losses``).
         normal_loss: ``mse`` or ``l1``, the normal map's term (``estimator.losses``).
         init_from: a saved estimator folder (``save_pretrained``) whose weights start the
@@ -144,6 +152,8 @@ class TrainConfig:
     p_texture: float = 0.25
     p_mix: float = 0.0
     p_paper: float = 0.0
+    relit_pool: str | None = None
+    p_relit: float = 0.5
     map_weight: float = MAP_WEIGHT
     render_weight: float = RENDER_WEIGHT
     normal_weight: float = NORMAL_WEIGHT
@@ -172,7 +182,9 @@ class TrainConfig:
             raise ValueError(f"domain must be one of {DOMAINS}, got {self.domain!r}")
         if self.domain == "paper" and self.textures is not None:
             raise ValueError("textures needs domain='capture' (the paper's data has procedural materials only)")
-        for name in ("p_texture", "p_mix", "p_paper"):
+        if self.relit_pool is not None and self.domain != "paper":
+            raise ValueError("relit_pool needs domain='paper' (the pool holds paper-domain groups)")
+        for name in ("p_texture", "p_mix", "p_paper", "p_relit"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
         if self.min_views > self.max_views:
@@ -192,6 +204,14 @@ class TrainConfig:
 
 def training_data(cfg: TrainConfig) -> Dataset:
     """The training groups of ``cfg.domain`` over ``TRAIN_SEEDS`` (``TrainConfig.domain``)."""
+    if cfg.domain == "paper" and cfg.relit_pool is not None:
+        data = RelitMixedGroups(cfg.relit_pool, cfg.p_relit, TRAIN_SEEDS)
+        if (data.config.size, data.config.views) != (cfg.size, cfg.max_views):
+            raise ValueError(
+                f"relit_pool {cfg.relit_pool} holds {data.config.views} views of {data.config.size} px; "
+                f"the run asks for {cfg.max_views} of {cfg.size}"
+            )
+        return data
     if cfg.domain == "paper":
         return RenderedGroups(TRAIN_SEEDS, cfg.group_config())
     textures = []
@@ -274,7 +294,7 @@ def _resume_model(folder: Path, cfg: TrainConfig, print_fn) -> SVBRDFEstimator:
         raise ValueError(
             f"{folder}: checkpoint architecture differs from the requested one (requested, saved): {changed}"
         )
-    for name in ("domain", "textures", "p_texture", "p_mix", "p_paper"):
+    for name in ("domain", "textures", "p_texture", "p_mix", "p_paper", "relit_pool", "p_relit"):
         # Checkpoints from before these options trained on the paper's data.
         saved = saved_cfg.get(name, getattr(TrainConfig, name))
         if saved != getattr(cfg, name):

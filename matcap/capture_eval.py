@@ -67,6 +67,7 @@ from estimator.model import SVBRDFEstimator
 from matcap.capture import CaptureConfig, CaptureOutput, CapturePipeline, area_downsample, photo_from_tensor
 from materials import metrics
 from materials.camera import camera_from_fov
+from materials.io.photo import MIN_PHOTO_SIDE
 from materials.types import Material
 from relight.interface import Relighter
 
@@ -83,6 +84,8 @@ __all__ = [
     "GroundTruthRelighter",
     "novel_lights",
     "flash_photo",
+    "photo_render_kwargs",
+    "as_8bit",
     "load_materials",
     "score",
     "evaluate",
@@ -153,9 +156,10 @@ class CaptureEvalConfig:
             raise ValueError(f"unknown sets or runs {unknown}; sets: {', '.join(SETS)}; runs: {', '.join(RUNS)}")
         if not self.sets or not self.runs:
             raise ValueError("need at least one set and one run")
-        if self.count < 1 or self.size < 16 or self.flip_every < 1:
+        if self.count < 1 or self.size < MIN_PHOTO_SIDE or self.flip_every < 1:
             raise ValueError(
-                f"count >= 1, size >= 16 and flip_every >= 1, got {self.count}, {self.size}, {self.flip_every}"
+                f"need count >= 1, size >= {MIN_PHOTO_SIDE} (the smallest photo) and flip_every >= 1, "
+                f"got {self.count}, {self.size}, {self.flip_every}"
             )
         if "textures" in self.sets and self.textures is None:
             raise ValueError("the textures set needs a folder of texture materials (--textures)")
@@ -191,22 +195,25 @@ def novel_lights(count: int = NOVEL_LIGHT_COUNT, seed: int = NOVEL_LIGHT_SEED) -
     return (lo + (hi - lo) * u).float()
 
 
-def _photo_render_kwargs(camera: torch.Tensor) -> dict:
-    """The photo's lighting: 1/d^2 falloff at auto-exposure intensity pi h^2."""
+def photo_render_kwargs(camera: torch.Tensor, falloff: bool = True) -> dict:
+    """``kernels.render`` keywords of the photo's lighting: 1/d^2 falloff at auto-exposure
+    intensity pi h^2 (``CaptureScene.render_kwargs``), or none."""
+    if not falloff:
+        return {"preset": "dgrsise"}
     h = float(camera[2])
     return {"preset": "dgrsise", "inverse_square": True, "intensity": math.pi * h * h}
 
 
-def _as_8bit(linear: torch.Tensor) -> torch.Tensor:
+def as_8bit(linear: torch.Tensor) -> torch.Tensor:
     """Linear radiance through the tone map, rounded to 8 bits, decoded back (a PNG)."""
     return kernels.inverse_tonemap(torch.round(kernels.tonemap(linear) * 255) / 255)
 
 
-def flash_photo(material: Material, camera: torch.Tensor) -> torch.Tensor:
-    """``[3, S, S]`` linear radiance of an 8-bit flash photo of ``material`` (unbatched)
-    from ``camera`` ``[3]``, the flash at the camera, with 1/d^2 falloff."""
+def flash_photo(material: Material, camera: torch.Tensor, falloff: bool = True) -> torch.Tensor:
+    """``[3, S, S]`` linear radiance of ``material`` (unbatched) lit by a flash at
+    ``camera`` ``[3]``, with 1/d^2 falloff or without, before the 8-bit step (``as_8bit``)."""
     maps = [t[None] for t in material.map_tensors()]
-    return kernels.render(*maps, camera[None, None], camera, **_photo_render_kwargs(camera))[0, 0]
+    return kernels.render(*maps, camera[None, None], camera, **photo_render_kwargs(camera, falloff))[0, 0]
 
 
 class GroundTruthRelighter(Relighter):
@@ -221,7 +228,7 @@ class GroundTruthRelighter(Relighter):
 
     def _relight(self, photo, light_pos, camera_pos, *, generator=None):
         full = kernels.render(*self.maps, light_pos, camera_pos[:, None])
-        return _as_8bit(area_downsample(full, photo.shape[-1])).to(photo.dtype)
+        return as_8bit(area_downsample(full, photo.shape[-1])).to(photo.dtype)
 
 
 def _center_crop(material: Material, size: int) -> Material:
@@ -308,7 +315,7 @@ def score(
         )
         b = kernels.tonemap(
             kernels.render(
-                *(t[None] for t in true.map_tensors()), lights[None], camera_pos[None], **_photo_render_kwargs(camera)
+                *(t[None] for t in true.map_tensors()), lights[None], camera_pos[None], **photo_render_kwargs(camera)
             )[0]
         )
     mask = highlight_mask(flash[None], camera.tolist())[0, 0]
@@ -363,7 +370,7 @@ def evaluate(
     bar = tqdm(desc="eval capture", unit="run", disable=not progress)
     for item in load_materials(cfg):
         flash = flash_photo(item.material, camera)
-        photo = photo_from_tensor(_as_8bit(flash), f"{item.name} (rendered)", fmt="png")
+        photo = photo_from_tensor(as_8bit(flash), f"{item.name} (rendered)", fmt="png")
         for run in cfg.runs:
             kind, k = RUNS[run]
             relighter = GroundTruthRelighter(item.material) if kind == "gt" else relighters.get(kind) if kind else None

@@ -94,25 +94,12 @@ def main(argv: list[str] | None = None) -> int:
     import kernels
     from estimator.evaluate import HELDOUT_LIGHTS, highlight_mask
     from matcap.capture import CaptureConfig, CapturePipeline, area_downsample, photo_from_tensor
+    from matcap.capture_eval import GroundTruthRelighter, as_8bit, flash_photo, photo_render_kwargs
     from matcap.estimate import load_estimator
     from materials import metrics
     from materials.camera import camera_from_fov
     from materials.domain_groups import load_texture_folder
-    from relight.interface import Relighter, get_relighter
-
-    class GroundTruthRelighter(Relighter):
-        """The true maps rendered at full resolution (no falloff), area-downsampled, then
-        tone-mapped to 8 bits and decoded, like a photo (clipped at 1, as the relighters)."""
-
-        name = "ground truth"
-
-        def __init__(self, material):
-            self.maps = [t[None] for t in material.map_tensors()]
-
-        def _relight(self, photo, light_pos, camera_pos, *, generator=None):
-            full = kernels.render(*self.maps, light_pos, camera_pos[:, None])
-            codes = torch.round(kernels.tonemap(area_downsample(full, photo.shape[-1])) * 255) / 255
-            return kernels.inverse_tonemap(codes)
+    from relight.interface import get_relighter
 
     torch.set_num_threads(args.threads)
     runs = [r for r in args.runs.split(",") if r]
@@ -137,16 +124,14 @@ def main(argv: list[str] | None = None) -> int:
         folders = sorted(p for p in Path(args.materials).iterdir() if p.is_dir())
         sources = [(f.name, lambda f=f: load_texture_folder(f)) for f in folders]
     camera = camera_from_fov()  # (0, 0, 4.83): the default camera over a square photo
-    h = float(camera[2])
-    photo_kw = {"inverse_square": True, "intensity": torch.pi * h * h} if args.photo_falloff != "none" else {}
+    photo_kw = photo_render_kwargs(camera, falloff=args.photo_falloff != "none")
     heldout = torch.tensor(HELDOUT_LIGHTS, dtype=torch.float32)
     rows = []
     for name, load in sources:
         true = load()
         maps = [t[None] for t in true.map_tensors()]
-        flash = kernels.render(*maps, camera[None, None], camera, **photo_kw)[0, 0]
-        codes = torch.round(kernels.tonemap(flash) * 255) / 255  # an 8-bit photo
-        photo = photo_from_tensor(kernels.inverse_tonemap(codes), f"{name} (rendered)")
+        flash = flash_photo(true, camera, falloff=args.photo_falloff != "none")
+        photo = photo_from_tensor(as_8bit(flash), f"{name} (rendered)")
         true_heldout = kernels.tonemap(kernels.render(*maps, heldout[None], camera, **photo_kw)[0])
         mask = highlight_mask(flash[None], camera.tolist())[0, 0]
         for run in runs:

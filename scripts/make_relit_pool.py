@@ -46,7 +46,12 @@ def main(argv: list[str] | None = None) -> int:
     relighter = get_relighter(args.relighter)
     if getattr(relighter, "stochastic", False):
         set_sampling(relighter, args.relighter, args.steps)
-    source = {"relighter": args.relighter, "steps": args.steps, "seed": args.seed, "script": "scripts/make_relit_pool.py"}
+    source = {
+        "relighter": args.relighter,
+        "steps": args.steps,
+        "seed": args.seed,
+        "script": "scripts/make_relit_pool.py",
+    }
     index, relit = torch.arange(args.start, args.start + args.count), []
     if args.out.exists():
         done_index, done, old_config, old_source = read_relit_pool(args.out)

@@ -366,3 +366,28 @@ def test_capture_domain_trains_and_resumes_exactly(tmp_path):
         main(_tiny_train_config(tmp_path / "b", steps=3))
     with pytest.raises(ValueError, match="p_mix"):
         main(_tiny_train_config(tmp_path / "b", steps=3, **{**capture, "p_mix": 0.1}))
+
+
+def test_relit_pool_data_and_flags(tmp_path):
+    from materials.relit_pool import RelitMixedGroups, write_relit_pool
+
+    pool_cfg = GroupConfig(size=32, views=4, source_size=64, seed=0)
+    relit = torch.rand(2, 3, 3, 32, 32, generator=torch.Generator().manual_seed(1))
+    pool = write_relit_pool(tmp_path / "pool.safetensors", torch.arange(2), relit, pool_cfg, {"relighter": "test"})
+    cfg = _tiny_train_config(tmp_path, relit_pool=str(pool), p_relit=1.0)
+    data = training_data(cfg)
+    assert type(data) is RelitMixedGroups and data.p_relit == 1.0
+    torch.testing.assert_close(data[1]["images"][1:], relit[1], atol=2.0**-11, rtol=0)
+    # The pool must match the run's size and views; it holds paper-domain groups only.
+    with pytest.raises(ValueError, match="views"):
+        training_data(_tiny_train_config(tmp_path, relit_pool=str(pool), max_views=3))
+    with pytest.raises(ValueError, match="paper"):
+        TrainConfig(domain="capture", relit_pool=str(pool))
+    with pytest.raises(ValueError, match="p_relit"):
+        TrainConfig(p_relit=2.0)
+    cli = parse_args(["--relit-pool", str(pool), "--p-relit", "0.3"])
+    assert (cli.relit_pool, cli.p_relit) == (str(pool), 0.3)
+    # It trains, and a checkpoint resumes only with the same pool setting.
+    main(_tiny_train_config(tmp_path / "r", steps=1, ckpt_every=1, relit_pool=str(pool), p_relit=0.5))
+    with pytest.raises(ValueError, match="p_relit"):
+        main(_tiny_train_config(tmp_path / "r", steps=2, relit_pool=str(pool), p_relit=0.2))

@@ -425,3 +425,27 @@ def test_domain_validation():
         CaptureDomain().switched(blur=True)
     with pytest.raises(ValueError, match="dgrsise"):
         DomainGroups(TRAIN_SEEDS, replace(CFG, preset="materialgan"))
+
+
+def test_p_paper_mixes_clean_paper_items_into_the_capture_stream():
+    capture = DomainGroups(TRAIN_SEEDS, CFG, CaptureDomain(p_falloff=1.0))
+    mixed = DomainGroups(TRAIN_SEEDS, CFG, CaptureDomain(p_falloff=1.0), p_paper=0.5)
+    paper = RenderedGroups(TRAIN_SEEDS, CFG)
+    kinds = []
+    for i in range(24):
+        item = mixed[i]
+        if mixed.item_domain(i).geometry == "paper":
+            kinds.append("paper")
+            assert torch.equal(item["images"], paper[i]["images"]) and not bool(item["inverse_square"])
+        else:
+            kinds.append("capture")
+            assert torch.equal(item["images"], capture[i]["images"]) and bool(item["inverse_square"])
+    # Both kinds occur (24 Bernoulli(0.5) draws: all one kind has probability 2 * 2^-24).
+    assert set(kinds) == {"paper", "capture"}
+    # p_paper = 0 leaves every draw as it was; 1 is the paper's stream.
+    assert torch.equal(
+        DomainGroups(TRAIN_SEEDS, CFG, p_paper=0.0)[3]["images"], DomainGroups(TRAIN_SEEDS, CFG)[3]["images"]
+    )
+    assert torch.equal(DomainGroups(TRAIN_SEEDS, CFG, p_paper=1.0)[3]["images"], paper[3]["images"])
+    with pytest.raises(ValueError, match="p_paper"):
+        DomainGroups(TRAIN_SEEDS, CFG, p_paper=1.5)
