@@ -31,6 +31,7 @@ import json
 import random
 import re
 import shutil
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -139,7 +140,7 @@ def _rng_state() -> tuple[dict[str, torch.Tensor], dict]:
     if torch.cuda.is_available():
         for i, s in enumerate(torch.cuda.get_rng_state_all()):
             tensors[f"torch_cuda_{i}"] = s
-    kind, keys, pos, has_gauss, cached = np.random.get_state()
+    kind, keys, pos, has_gauss, cached = typing.cast(tuple, np.random.get_state())
     py_version, py_state, py_gauss = random.getstate()
     extra = {
         "numpy": [kind, keys.tolist(), int(pos), int(has_gauss), float(cached)],

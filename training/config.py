@@ -65,17 +65,19 @@ def field_help(cls: type) -> dict[str, str]:
             i += 1
             continue
         i += 1
-        indent, names, text = None, [], []
+        indent: int | None = None
+        names: list[str] = []
+        text: list[str] = []
         while i < len(lines):
             line = lines[i]
             stripped = line.strip()
             depth = len(line) - len(line.lstrip())
             if stripped and indent is not None and depth < indent or stripped and indent is None and depth == 0:
                 break  # the section ended (a dedent, or an unindented line)
-            if stripped and (indent is None or depth == indent) and _ENTRY.match(stripped):
+            match = _ENTRY.match(stripped) if stripped and (indent is None or depth == indent) else None
+            if match is not None:
                 _store(found, names, text)
                 indent = depth
-                match = _ENTRY.match(stripped)
                 names = [n.strip() for n in match.group(1).split(",")]
                 text = [match.group(2)]
             elif stripped:
@@ -126,7 +128,7 @@ def model_config(
     if dataclasses.is_dataclass(model_cls):
         hints = typing.get_type_hints(model_cls)
     else:
-        hints = typing.get_type_hints(model_cls.__init__)
+        hints = typing.get_type_hints(model_cls.__init__)  # type: ignore[misc]  # the class's own constructor
     params = [p for p in inspect.signature(model_cls).parameters.values() if p.kind is not p.VAR_KEYWORD]
     unknown = set(exclude) - {p.name for p in params}
     if unknown:
@@ -136,7 +138,8 @@ def model_config(
     if unknown:
         raise ValueError(f"{model_cls.__name__} has no arguments {sorted(unknown)} to give defaults")
     docs = field_help(help_from or model_cls)
-    fields, entries = [], []
+    fields: list[tuple[str, Any, Any]] = []
+    entries: list[str] = []
     for p in params:
         if p.name in exclude:
             continue
@@ -145,7 +148,7 @@ def model_config(
         tp = _normalise(hints.get(p.name, type(p.default)))
         default = defaults.get(p.name, p.default)
         if isinstance(default, (list, dict, set)):
-            fields.append((p.name, tp, dataclasses.field(default_factory=lambda d=default: type(d)(d))))
+            fields.append((p.name, tp, dataclasses.field(default_factory=_copier(default))))
         else:
             fields.append((p.name, tp, dataclasses.field(default=default)))
         if p.name in docs:
@@ -160,12 +163,17 @@ def model_config(
     return cls
 
 
+def _copier(value: list | dict | set) -> Callable[[], Any]:
+    """A default factory returning a fresh copy of ``value`` (one per instance)."""
+    return lambda: type(value)(value)
+
+
 def _normalise(tp: Any) -> Any:
     """``Sequence[X]`` -> ``tuple[X, ...]``; ``Optional`` parts kept."""
     origin = typing.get_origin(tp)
     if origin in (Sequence, list, typing.Sequence):
         (item,) = typing.get_args(tp) or (Any,)
-        return tuple[item, ...]
+        return tuple[item, ...]  # type: ignore[valid-type]  # built at run time from the annotation
     if _is_union(tp):
         return typing.Union[tuple(_normalise(a) for a in typing.get_args(tp))]  # noqa: UP007
     return tp
@@ -211,7 +219,11 @@ def config_of(cls: type, model: Any) -> Any:
     diffusers' bookkeeping) or a dataclass. Every field of ``cls`` must be present.
     """
     config = model.config
-    data = dataclasses.asdict(config) if dataclasses.is_dataclass(config) else dict(config)
+    data = (
+        dataclasses.asdict(config)
+        if dataclasses.is_dataclass(config) and not isinstance(config, type)
+        else dict(config)
+    )
     names = [f.name for f in dataclasses.fields(cls)]
     missing = [n for n in names if n not in data]
     if missing:
@@ -277,6 +289,7 @@ def _converter(tp: Any, flag: str) -> tuple[Callable[[str], Any], list | None, s
     optional = _is_union(tp) and type(None) in typing.get_args(tp)
     base = _strip_optional(tp)
     choices = None
+    convert: Callable[..., Any]
     if typing.get_origin(base) is typing.Literal:
         choices = list(typing.get_args(base))
         convert = type(choices[0])
@@ -284,8 +297,10 @@ def _converter(tp: Any, flag: str) -> tuple[Callable[[str], Any], list | None, s
     elif _tuple_item(base) is not None:
         item = _tuple_item(base)
 
-        def convert(text: str, item=item) -> tuple:
+        def split(text: str, item=item) -> tuple:
             return tuple(item(v) for v in text.split(",") if v.strip())
+
+        convert = split
 
         metavar = f"{item.__name__.upper()},..."
     elif base is dict:
@@ -297,8 +312,10 @@ def _converter(tp: Any, flag: str) -> tuple[Callable[[str], Any], list | None, s
     if optional:
         inner = convert
 
-        def convert(text: str, inner=inner) -> Any:
+        def or_none(text: str, inner=inner) -> Any:
             return None if text.lower() == "none" else inner(text)
+
+        convert = or_none
 
     if choices is not None and optional:
         choices = [*choices, None]
@@ -354,7 +371,7 @@ def _add_fields(parser: argparse.ArgumentParser, target, cls: type, prefix: str,
         if values is not None:
             default = getattr(values, f.name)
         else:
-            default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+            default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc,operator]
         if _is_dataclass_type(tp):
             nested.append((f, tp, dest, default))
             continue

@@ -18,7 +18,7 @@ from materials.io.atomic import atomic_file
 __all__ = ["plot_loss", "running_mean"]
 
 
-def running_mean(values: Sequence[float], window: int) -> np.ndarray:
+def running_mean(values: Sequence[float] | np.ndarray, window: int) -> np.ndarray:
     """Mean of each ``window`` consecutive values: ``[len(values) - window + 1]`` float64."""
     x = np.asarray(values, dtype=np.float64)
     csum = np.concatenate([[0.0], np.cumsum(x)])
