@@ -1,0 +1,126 @@
+"""Settings of a capture: the module constants (defaults, sizes, file names) and the typed
+``CaptureConfig`` that checks them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+from materials.lights import EVAL_LIGHTS
+
+#: How the flash's light falls off over the plane (package docstring).
+FALLOFFS = ("none", "inverse-square")
+#: Default falloff model of a photo: a phone flash is a point light next to the lens, so
+#: a photo has the 1/d^2 falloff. Measured on the 5 real-texture materials rendered under
+#: the flash (README "Capture a material", table "falloff"; maps re-rendered in the
+#: photo's true lighting under 16 held-out lights): for photos with the falloff,
+#: correcting it gives 30.21 dB against 29.04 without (diffuse MSE 0.0024 against
+#: 0.0038); applied to photos without falloff it costs 1.8 dB (27.14 against 28.90).
+DEFAULT_FALLOFF = "inverse-square"
+#: The relighter used by default and its sampling steps: one DDIM step of the diffusion
+#: model is its best-scoring setting (README "Relighting": 28.12 dB against 25.89 at 10).
+DEFAULT_RELIGHTER = "diffusion"
+DEFAULT_RELIGHT_STEPS = 1
+#: Working resolution of the networks, pixels: the diffusion relighter's only size and
+#: the size the shipped estimator was trained at.
+WORKING_SIZE = 64
+#: Largest photo side refined at full resolution. At 2048 x 2048 with 8 views the
+#: refinement's buffers are estimated at 1.7 GB (``refine_memory_bytes``); the whole
+#: process peaked at 3.3 GB RSS and took 485 s on the project's 2-core CPU
+#: (``benchmarks/bench_capture.py --sizes 2048``, ``benchmarks/results/capture_2048.json``).
+#: A larger photo must be downscaled first (``CaptureConfig.max_side`` does it).
+MAX_SIDE = 2048
+#: Refinement defaults (README "Capture a material", tables "relit view weight" and
+#: "steps"). Weight of each relit view (the photo weighs 1): over 5 real-texture and 4
+#: glossy procedural materials, re-render PSNR by weight 0 / 0.1 / 0.25 / 0.5 / 1 was
+#: 30.32 / 30.21 / 30.03 / 29.83 / 29.46 dB (real; photo alone 30.33) and 19.92 / 20.39 /
+#: 20.31 / 20.15 / 20.05 dB (glossy; alone 20.31): 0.1 is the best on the glossy set and
+#: within 0.12 dB of the photo alone on the real one, and roughness MSE on the glossy
+#: set falls from 0.130 (alone) to 0.057. Steps: 50 / 100 / 200 gave 20.24 / 20.39 / 20.24
+#: dB on the glossy set; 100 keeps 1024 px under the 120 s target (96 s measured).
+DEFAULT_REFINE_STEPS = 100
+DEFAULT_RELIT_WEIGHT = 0.1
+#: Adam rate of the per-pixel logits and normal slopes (``estimator.refine.refine_maps``'s).
+REFINE_LR = 1e-2
+#: Lights of the re-renders (after the flash): the 7 evaluation lights.
+RENDER_LIGHTS = EVAL_LIGHTS
+#: The file that marks a folder written by ``CaptureOutput.save`` (safe to --overwrite).
+PROVENANCE_JSON = "provenance.json"
+#: The built-in photo: procedural seed (``relight render``'s default material) and size.
+BUILTIN_SEED = 3
+BUILTIN_SIZE = 256
+
+
+@dataclass(frozen=True)
+class CaptureConfig:
+    """Settings of one capture (``CapturePipeline.__call__``).
+
+    Attributes:
+        relit: number K of relit views, 0 to 7 (the first K of ``EVAL_LIGHTS``); 0 runs
+            the same steps with the photo alone (the baseline).
+        steps: sampling steps of a sampling relighter (diffusion); None keeps its own.
+        samples: samples per relit view; >= 2 gives the confidence map (their std) and
+            averages them.
+        refine_steps: refinement steps at full resolution (0: the estimator's maps,
+            upsampled).
+        refine_lr: Adam rate of the refinement.
+        photo_weight, relit_weight: weight of the photo's and of each relit view's loss.
+        falloff: ``"none"`` or ``"inverse-square"`` (package docstring).
+        fov: field of view across the photo's long side, degrees (None: EXIF or 45).
+        camera: camera (and flash) position ``(x, y, z)``, scene units; overrides ``fov``.
+        working_size: the networks' resolution, pixels.
+        max_side: downscale a photo whose long side exceeds it (None: refuse photos
+            above ``MAX_SIDE``); at most ``MAX_SIDE``.
+        seed: seed of the relighter's sampling.
+        clip_aware: in the refinement, a pixel clipped at the top of the photo's range
+            (8-bit PNG / JPEG: 1) or of the relighter's (1, times the falloff factor)
+            counts as "at least this bright" (``refine_full_resolution``); EXR photos
+            are taken as unclipped.
+    """
+
+    relit: int = len(EVAL_LIGHTS)
+    steps: int | None = DEFAULT_RELIGHT_STEPS
+    samples: int = 1
+    refine_steps: int = DEFAULT_REFINE_STEPS
+    refine_lr: float = REFINE_LR
+    photo_weight: float = 1.0
+    relit_weight: float = DEFAULT_RELIT_WEIGHT
+    falloff: str = DEFAULT_FALLOFF
+    fov: float | None = None
+    camera: tuple[float, float, float] | None = None
+    working_size: int = WORKING_SIZE
+    max_side: int | None = None
+    seed: int = 0
+    clip_aware: bool = True
+
+    def __post_init__(self) -> None:
+        def need(ok: bool, message: str) -> None:
+            if not ok:
+                raise ValueError(message)
+
+        need(0 <= self.relit <= len(EVAL_LIGHTS), f"relit must be 0..{len(EVAL_LIGHTS)}, got {self.relit}")
+        need(self.steps is None or self.steps >= 1, f"steps must be at least 1, got {self.steps}")
+        need(self.samples >= 1, f"samples must be at least 1, got {self.samples}")
+        need(self.refine_steps >= 0, f"refine steps must be >= 0, got {self.refine_steps}")
+        need(self.refine_lr > 0, f"refine_lr must be positive, got {self.refine_lr}")
+        for name in ("photo_weight", "relit_weight"):
+            value = getattr(self, name)
+            need(math.isfinite(value) and value >= 0, f"{name} must be a finite number >= 0, got {value}")
+        need(self.photo_weight > 0 or self.relit_weight > 0, "photo_weight and relit_weight cannot both be 0")
+        need(self.falloff in FALLOFFS, f"falloff must be one of {', '.join(FALLOFFS)}, got {self.falloff!r}")
+        need(self.fov is None or 0 < self.fov < 180, f"field of view must lie in (0, 180) degrees, got {self.fov}")
+        if self.camera is not None:
+            need(
+                len(self.camera) == 3 and all(math.isfinite(v) for v in self.camera) and self.camera[2] > 0,
+                f"camera must be three finite numbers with z > 0, got {self.camera}",
+            )
+        need(self.working_size >= 16, f"working_size must be at least 16, got {self.working_size}")
+        if self.max_side is not None:
+            need(
+                self.working_size <= self.max_side <= MAX_SIDE,
+                f"max side must lie in [{self.working_size}, {MAX_SIDE}], got {self.max_side}",
+            )
+
+    def to_dict(self) -> dict:
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}

@@ -1,0 +1,237 @@
+"""Step 6, refinement at the photo's full resolution (``refine_full_resolution``): the
+per-view targets and their masked, clip-aware log-L1 (``_Target``), the maps'
+unconstrained parameters, the views rendered per call, and the memory estimate
+(``refine_memory_bytes``).
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from tqdm.auto import tqdm
+
+import kernels
+from estimator.model import NORMAL_MIN_Z
+from estimator.refine import DEFAULT_TOL, DEFAULT_WINDOW, LOGIT_EPS, RefineResult, converged
+from matcap.capture.config import DEFAULT_REFINE_STEPS, DEFAULT_RELIT_WEIGHT, REFINE_LR
+from matcap.capture.scene import area_downsample
+from materials.types import Material
+
+
+class _Target:
+    """One view's target, prepared once for the loss of every step (``loss``): the mean
+    ``kernels.log_l1_loss`` over the pixels where ``mask`` ([h, w] bool) is True.
+
+    ``ceiling``: the level at which ``y`` was clipped (a scalar or a tensor broadcasting to
+    ``y``), or None. A pixel of ``y`` at its ceiling only says "at least this bright" (the
+    flash highlight of an 8-bit photo, a relighter's output capped at 1), so there the
+    render is compared as ``min(x, ceiling)``: a brighter render costs nothing.
+    """
+
+    def __init__(self, y: torch.Tensor, mask: torch.Tensor, ceiling: torch.Tensor | float | None = None):
+        self.mask = None if bool(mask.all()) else mask.to(y.dtype)
+        self.scale = mask.numel() / int(mask.sum())  # mean over the masked pixels only
+        self.y = y if self.mask is None else y * self.mask
+        self.clipped, self.ceiling = None, None
+        if ceiling is not None:
+            ceiling = torch.as_tensor(ceiling, dtype=y.dtype)
+            clipped = y >= ceiling - CLIP_TOL
+            if bool(clipped.any()):
+                self.clipped, self.ceiling = clipped, ceiling
+
+    def loss(self, x: torch.Tensor) -> torch.Tensor:
+        if self.clipped is not None:
+            x = torch.where(self.clipped, torch.minimum(x, self.ceiling), x)
+        if self.mask is not None:
+            x = x * self.mask
+        return kernels.log_l1_loss(x, self.y) * self.scale
+
+
+def _masked_log_l1(
+    x: torch.Tensor, y: torch.Tensor, mask: torch.Tensor, ceiling: torch.Tensor | float | None = None
+) -> torch.Tensor:
+    """``_Target(y, mask, ceiling).loss(x)``."""
+    return _Target(y, mask, ceiling).loss(x)
+
+
+#: A target within this of its ceiling counts as clipped. Decoded 8-bit photos and the
+#: relighters' capped outputs sit exactly at it; the next 8-bit code is 0.009 below 1.
+CLIP_TOL = 1e-6
+
+
+def _to_parameters(material: Material) -> list[torch.Tensor]:
+    """Unconstrained per-pixel parameters of ``[1, C, S, S]`` maps, as in
+    ``estimator.refine.refine_maps``: logits of diffuse, roughness, specular (clamped to
+    ``[LOGIT_EPS, 1 - LOGIT_EPS]`` first), normals as slopes ``(n_x, n_y) / n_z``."""
+    n = F.normalize(material.normal.detach().float(), dim=1)
+    nz = n[:, 2:3].clamp_min(NORMAL_MIN_Z)
+
+    def logit(t):
+        return torch.logit(t.detach().float().clamp(LOGIT_EPS, 1 - LOGIT_EPS))
+
+    return [
+        logit(material.diffuse).requires_grad_(True),
+        (n[:, :2] / nz).requires_grad_(True),
+        logit(material.roughness).requires_grad_(True),
+        logit(material.specular).requires_grad_(True),
+    ]
+
+
+def _from_parameters(p: list[torch.Tensor]) -> Material:
+    slope = p[1]
+    normal = F.normalize(torch.cat([slope, torch.ones_like(slope[:, :1])], dim=1), dim=1)
+    return Material(torch.sigmoid(p[0]), normal, torch.sigmoid(p[2]), torch.sigmoid(p[3]))
+
+
+#: Views rendered in one call of the refinement: as many as fit in this many bytes of
+#: per-view buffers (render, Fresnel weights, output gradient, loss temporaries: about
+#: 12 float32 channels a pixel). One call for several views costs less than one per view
+#: (256 px, 8 views: 0.13 s against 0.29 s forward + backward on this CPU); 2048 px gets
+#: 2 views a call.
+CHUNK_BYTES = 512 * 1024 * 1024
+_VIEW_CHANNELS = 12
+
+
+def _view_chunks(views: list[int], side: int) -> list[list[int]]:
+    per_view = 4 * _VIEW_CHANNELS * side * side
+    n = max(1, CHUNK_BYTES // per_view)
+    return [views[i : i + n] for i in range(0, len(views), n)]
+
+
+def refine_memory_bytes(side: int, views: int) -> int:
+    """Estimated peak bytes of ``refine_full_resolution`` at ``side x side`` (float32).
+
+    Per pixel: the 10 map channels as parameters, their gradient, Adam's two moments and
+    the best copy (5 x 10), the maps made from them and a detached copy with its gradient
+    (3 x 10), the photo target and mask (4); plus, per view rendered in one call
+    (``CHUNK_BYTES``), about 12 channels (render, Fresnel weights, masked products, their
+    gradients). Compared with the peak RSS in ``benchmarks/bench_capture.py``.
+    """
+    per_view = 4 * _VIEW_CHANNELS * side * side
+    in_flight = min(views, max(1, CHUNK_BYTES // per_view))
+    return int(4 * side * side * (5 * 10 + 3 * 10 + 4) + in_flight * per_view)
+
+
+def refine_full_resolution(
+    material: Material,
+    photo: torch.Tensor,
+    photo_mask: torch.Tensor,
+    relit: torch.Tensor,
+    relit_mask: torch.Tensor,
+    light_pos: torch.Tensor,
+    camera_pos: torch.Tensor,
+    *,
+    photo_weight: float = 1.0,
+    relit_weight: float = DEFAULT_RELIT_WEIGHT,
+    photo_ceiling: float | None = None,
+    relit_ceiling: torch.Tensor | float | None = None,
+    steps: int = DEFAULT_REFINE_STEPS,
+    lr: float = REFINE_LR,
+    tol: float = DEFAULT_TOL,
+    window: int = DEFAULT_WINDOW,
+    render_kwargs: dict | None = None,
+    progress: bool = False,
+) -> RefineResult:
+    """Fit per-pixel maps at the photo's resolution to the photo and to lower-resolution
+    relit views, through the Warp renderer.
+
+    Loss: ``sum_v w_v L_v / sum_v w_v`` with ``L_v`` the mean log-L1
+    (``kernels.log_l1_loss``, Deschaintre et al. 2018) over the masked pixels: view 0 the
+    maps rendered under the flash against ``photo`` at full resolution; view k >= 1
+    rendered at full resolution under light k, area-downsampled to the relit size, against
+    ``relit[k - 1]``. ``w_0 = photo_weight``, ``w_k = relit_weight``. The views are
+    rendered and back-propagated one at a time (the maps' gradient accumulates), so the
+    memory does not grow with K (``refine_memory_bytes``). Adam on the parameters of
+    ``estimator.refine.refine_maps``; early stop and best-of as in ``estimator.refine``.
+
+    Args:
+        material: initial maps ``[1, C, S, S]`` (e.g. the estimator's, upsampled).
+        photo: ``[3, S, S]`` linear radiance; photo_mask: ``[S, S]`` bool (True: real pixel).
+        relit: ``[K, 3, s, s]`` (K may be 0; S a multiple of s); relit_mask: ``[s, s]`` bool.
+        light_pos: ``[1 + K, 3]`` (row 0 the flash); camera_pos: ``[3]``.
+        photo_ceiling, relit_ceiling: where the photo / the relit views were clipped
+            (``_masked_log_l1``): None (not clipped), a number, or for the relit views a
+            tensor broadcasting to ``[K, 3, s, s]``.
+        render_kwargs: ``kernels.render`` keywords (preset, falloff, intensity).
+
+    Returns:
+        ``RefineResult(material [1, C, S, S], history, 0)``.
+    """
+    render_kwargs = dict(render_kwargs or {"preset": "dgrsise"})
+    k = relit.shape[0]
+    side = photo.shape[-1]
+    if material.diffuse.shape[0] != 1 or material.shape != (side, side) or photo.shape[-2] != side:
+        raise ValueError(f"material {material.shape} and photo {tuple(photo.shape)} must be one [.., S, S] image")
+    if light_pos.shape != (1 + k, 3):
+        raise ValueError(f"light_pos must be [1 + K, 3] = [{1 + k}, 3], got {tuple(light_pos.shape)}")
+    weights = [photo_weight] + [relit_weight] * k
+    total = sum(weights)
+    if not total > 0:
+        raise ValueError("the view weights sum to 0")
+    views = [v for v in range(1 + k) if weights[v] > 0]
+    lights = light_pos.float()
+    camera = camera_pos.float().reshape(1, 1, 3)
+    relit_size = relit.shape[-1] if k else side
+
+    # Per chunk of views rendered together: the photo's target (if view 0 is in it) and
+    # one batched target for its relit views (they share one weight).
+    plan = []
+    for chunk in _view_chunks(views, side):
+        rel = [v - 1 for v in chunk if v > 0]
+        ceiling = relit_ceiling[rel] if isinstance(relit_ceiling, torch.Tensor) else relit_ceiling
+        plan.append(
+            (
+                chunk,
+                _Target(photo, photo_mask, photo_ceiling) if chunk[0] == 0 else None,
+                _Target(relit[rel], relit_mask, ceiling) if rel else None,
+                len(rel) * relit_weight / total,
+            )
+        )
+
+    def chunk_loss(maps: tuple[torch.Tensor, ...], step: tuple) -> torch.Tensor:
+        chunk, photo_target, relit_target, relit_share = step
+        images = kernels.render(*maps, lights[chunk][None], camera, **render_kwargs)[0]  # [n, 3, S, S]
+        loss = images.new_zeros(())
+        if photo_target is not None:
+            loss = loss + photo_target.loss(images[0]) * (photo_weight / total)
+            images = images[1:]
+        if relit_target is not None:
+            loss = loss + relit_target.loss(area_downsample(images, relit_size)) * relit_share
+        return loss
+
+    params = _to_parameters(material)
+    # fused: one kernel for the whole update (the per-tensor loop cost ~10% of a step).
+    opt = torch.optim.Adam(params, lr=lr, fused=True)
+    history: list[float] = []
+    best, best_loss = [p.detach().clone() for p in params], float("inf")
+
+    def loss_and_grad() -> float:
+        maps = _from_parameters(params).map_tensors()
+        leaves = tuple(t.detach().requires_grad_(True) for t in maps)
+        value = 0.0
+        for step in plan:
+            loss = chunk_loss(leaves, step)
+            loss.backward()  # one chunk's graph at a time; the leaves' .grad accumulates
+            value += float(loss.detach())
+        torch.autograd.backward(list(maps), [t.grad for t in leaves])
+        return value
+
+    with tqdm(total=steps, desc="refine (full resolution)", leave=False, disable=not progress) as bar:
+        for _ in range(steps):
+            opt.zero_grad(set_to_none=True)
+            value = loss_and_grad()
+            if value < best_loss:  # the loss belongs to the parameters before this step
+                best_loss, best = value, [p.detach().clone() for p in params]
+            opt.step()
+            history.append(value)
+            bar.update(1)
+            bar.set_postfix(loss=f"{value:.5f}")
+            if converged(history, window, tol):
+                break
+    with torch.no_grad():
+        if steps:
+            maps = _from_parameters(params).map_tensors()
+            if sum(float(chunk_loss(maps, step)) for step in plan) >= best_loss:
+                for p, b in zip(params, best):
+                    p.copy_(b)
+        return RefineResult(_from_parameters(params), history, 0)

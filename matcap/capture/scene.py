@@ -1,0 +1,131 @@
+"""Where the camera, the flash and the lights sit over the plane (``CaptureScene``,
+``capture_scene``), the flash's falloff over it (``falloff_factor``), and the exact area
+downsampling between the photo's and the working resolution (``area_downsample``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from matcap.capture.config import DEFAULT_FALLOFF, RENDER_LIGHTS
+from materials.camera import DEFAULT_FOV_DEG, camera_height, fov_from_exif
+from materials.frame import Frame
+from materials.io.photo import Photo
+
+
+@dataclass(frozen=True)
+class CaptureScene:
+    """Where the camera and the lights are, and how the refinement renders (scene units
+    of the ``dgrsise`` plane, side ``plane_size``).
+
+    Attributes:
+        camera_pos: ``[3]`` camera and flash position.
+        camera_source: ``"camera"`` (given), ``"fov"`` (given), ``"exif"`` or ``"default"``.
+        fov_deg: field of view across the photo's long side (None when ``camera`` was given).
+        relit_light_pos: ``[K, 3]`` lights of the relit views.
+        falloff: ``FALLOFFS`` entry.
+        plane_size: side of the plane the prepared square spans.
+    """
+
+    camera_pos: torch.Tensor
+    camera_source: str
+    fov_deg: float | None
+    relit_light_pos: torch.Tensor
+    falloff: str
+    plane_size: float
+
+    @property
+    def render_kwargs(self) -> dict:
+        """``kernels.render`` keywords of the refinement and the re-renders: ``dgrsise``,
+        with 1/d^2 at intensity pi h^2 under ``"inverse-square"`` (package docstring)."""
+        if self.falloff == "none":
+            return {"preset": "dgrsise"}
+        height = float(self.camera_pos[2])
+        return {"preset": "dgrsise", "inverse_square": True, "intensity": math.pi * height * height}
+
+    def to_dict(self) -> dict:
+        return {
+            "camera_pos": self.camera_pos.tolist(),
+            "camera_source": self.camera_source,
+            "fov_deg": self.fov_deg,
+            "relit_light_pos": self.relit_light_pos.tolist(),
+            "render_light_pos": [self.camera_pos.tolist(), *[list(p) for p in RENDER_LIGHTS]],
+            "falloff": self.falloff,
+            "plane_size": self.plane_size,
+            "render": dict(self.render_kwargs),
+        }
+
+
+def area_downsample(x: torch.Tensor, size: int) -> torch.Tensor:
+    """Mean over ``f x f`` blocks: ``[..., C, S, S]`` -> ``[..., C, size, size]``, S = f * size
+    (the radiance a pixel ``f`` times larger collects; differentiable)."""
+    s = x.shape[-1]
+    if x.shape[-2] != s or s % size:
+        raise ValueError(f"area_downsample needs a square side that is a multiple of {size}, got {tuple(x.shape)}")
+    if s == size:
+        return x
+    f = s // size
+    # A reshape and a mean: its backward is a broadcast (avg_pool2d's CPU backward cost
+    # 20 ms per 256 px view here, more than the render's).
+    return x.reshape(*x.shape[:-2], size, f, size, f).mean(dim=(-3, -1))
+
+
+def _plane_grid(size: int, plane_size: float, dtype=torch.float32) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(x, y)`` ``[size, size]`` plane coordinates of the pixel centres (SPEC section 2)."""
+    c = ((torch.arange(size, dtype=torch.float64) + 0.5) / size - 0.5) * plane_size
+    return c[None, :].expand(size, size).to(dtype), (-c)[:, None].expand(size, size).to(dtype)
+
+
+def falloff_factor(light_pos: torch.Tensor, reference_height: float, size: int, plane_size: float) -> torch.Tensor:
+    """``h^2 / |p - x|^2`` per pixel of a square image spanning the plane.
+
+    Args:
+        light_pos: ``[K, 3]`` light positions (scene units).
+        reference_height: ``h``, the flash's height (the factor is 1 under a flash at h).
+        size: side of the image, pixels; plane_size: side of the plane, scene units.
+
+    Returns:
+        ``[K, 1, size, size]`` float32.
+    """
+    x, y = _plane_grid(size, plane_size, torch.float64)
+    p = light_pos.to(torch.float64)[:, :, None, None]
+    d2 = (p[:, 0] - x) ** 2 + (p[:, 1] - y) ** 2 + p[:, 2] ** 2
+    return (reference_height**2 / d2)[:, None].float()
+
+
+def capture_scene(
+    photo: Photo,
+    frame: Frame,
+    light_pos: torch.Tensor,
+    *,
+    falloff: str = DEFAULT_FALLOFF,
+    fov: float | None = None,
+    camera: tuple[float, float, float] | None = None,
+) -> CaptureScene:
+    """The scene convention of a phone photo (package docstring): the camera and flash
+    above the photo's centre, at the height where the photo's long side on the plane
+    spans the field of view: ``fov``, else the EXIF focal length, else 45 degrees;
+    ``camera`` overrides all of it.
+
+    Args:
+        photo: the ``Photo`` (its EXIF focal length and size); frame: its ``Frame``.
+        light_pos: ``[K, 3]`` lights of the relit views (scene units).
+    """
+    if camera is not None:
+        camera_pos, source, fov_deg = torch.tensor(camera, dtype=torch.float32), "camera", None
+    else:
+        if fov is not None:
+            fov_deg, source = float(fov), "fov"
+        elif photo.focal_35mm is not None:
+            h, w = photo.exif_size or photo.size
+            fov_deg, source = fov_from_exif(photo.focal_35mm, aspect=max(h, w) / min(h, w)), "exif"
+        else:
+            fov_deg, source = DEFAULT_FOV_DEG, "default"
+        height, width = frame.photo_size
+        x, y = frame.pixel_to_plane(torch.tensor((height - 1) / 2), torch.tensor((width - 1) / 2))
+        z = camera_height(fov_deg, frame.photo_long_side)
+        camera_pos = torch.tensor([float(x), float(y), z], dtype=torch.float32)
+    return CaptureScene(camera_pos, source, fov_deg, light_pos.float().reshape(-1, 3), falloff, frame.plane_size)
