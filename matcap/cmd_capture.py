@@ -57,6 +57,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--max-side", type=int, default=None, help="downscale photos longer than this (at most 2048)")
     p.add_argument("--seed", type=int, default=0, help="seed of the relighter's sampling (default 0)")
+    p.add_argument(
+        "--normals",
+        choices=("opengl", "directx"),
+        default="opengl",
+        help="normal map convention of the exported files (default opengl: green up, Blender/Unity; "
+        "directx: green down, Unreal)",
+    )
+    p.add_argument(
+        "--tileable",
+        action="store_true",
+        help="also write material_tileable/: the maps blended with their half-period shift so they "
+        "repeat without a seam (the blend band softens detail; seam errors in its export.json)",
+    )
     p.add_argument("--overwrite", action="store_true", help="replace an output folder written by this command")
     p.set_defaults(run=run)
 
@@ -135,7 +148,7 @@ def run(args) -> int:
         relighter, load_estimator(args.estimator), config=config, names={"relighter": args.relighter}
     )
     output = pipeline(photo, progress=True)
-    output.save(args.out, overwrite=args.overwrite)
+    output.save(args.out, overwrite=args.overwrite, normal_convention=args.normals, tileable=args.tileable)
     h, w = output.photo.size
     print(
         f"wrote {w}x{h} maps (material/, material.glb), {len(output.renders)} re-renders, "

@@ -425,3 +425,20 @@ def test_help_numbers_match_the_code(capsys):
     assert f"refinement steps (default {DEFAULT_REFINE_STEPS})" in text
     assert f"the photo's is 1 (default {DEFAULT_RELIT_WEIGHT:g})" in text
     assert f"at most {MAX_SIDE}" in text and f"relit views, 0-{len(EVAL_LIGHTS)}" in text
+
+
+def test_cli_directx_normals_and_tileable_maps(tmp_path, estimator_folder):
+    out = tmp_path / "cap"
+    args = capture_argv("builtin", out, estimator_folder, "--relit", "0", "--normals", "directx", "--tileable")
+    assert main(args) == 0
+    gl = read_exr(out / "material" / "normal.exr")
+    # The refined maps are written once in each convention: DirectX flips green only.
+    assert (out / "material_tileable" / "normal.exr").exists()
+    opengl = tmp_path / "gl"
+    assert main(capture_argv("builtin", opengl, estimator_folder, "--relit", "0")) == 0
+    ref = read_exr(opengl / "material" / "normal.exr")
+    np.testing.assert_allclose(gl[..., 1], -ref[..., 1], atol=1e-6)
+    np.testing.assert_allclose(gl[..., [0, 2]], ref[..., [0, 2]], atol=1e-6)
+    seams = json.loads((out / "material_tileable" / "export.json").read_text())["provenance"]["seam_error"]
+    assert set(seams) == {"diffuse", "normal", "roughness", "specular"}
+    assert all(s["after"] <= max(s["before"], 2.0) for s in seams.values()), seams

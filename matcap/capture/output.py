@@ -57,12 +57,23 @@ class CaptureOutput:
     refine_history: list[float]
     provenance: dict
 
-    def save(self, folder: str | os.PathLike, *, overwrite: bool = False) -> Path:
+    def save(
+        self,
+        folder: str | os.PathLike,
+        *,
+        overwrite: bool = False,
+        normal_convention: str = "opengl",
+        tileable: bool = False,
+    ) -> Path:
         """Write the capture's folder, atomically (nothing appears unless all of it does)::
 
         provenance.json     the record (marker of this folder)
         preview.png         photo + relit views / maps / re-renders (tone-mapped, sRGB maps)
         material/           ``export_material``: EXR + PNG maps, metallic-roughness, material.glb
+                            (normal files in ``normal_convention``: "opengl" or "directx")
+        material_tileable/  with ``tileable``: the same export of ``materials.tiling.make_tileable``
+                            of the maps (offset-and-blend; its ``export.json`` records each
+                            map's seam error before and after)
         renders/view_KK.exr/.png   re-renders on the photo's grid: 00 the flash, 01.. RENDER_LIGHTS
         relit/relit_KK.exr/.png    relit views at the working resolution (no falloff)
         confidence.exr/.png        std across relighting samples (only with samples >= 2)
@@ -73,10 +84,20 @@ class CaptureOutput:
         from materials.io import export_material, write_capture, write_exr, write_png
         from materials.io.atomic import atomic_folder
         from materials.io.encoding import chw_to_hwc
+        from materials.tiling import make_tileable, seam_error
 
         folder = Path(folder)
         with atomic_folder(folder, overwrite=overwrite, marker=PROVENANCE_JSON) as tmp:
-            export_material(tmp / "material", self.material, provenance={"made_by": "relight capture"})
+            made_by = {"made_by": "relight capture"}
+            export_material(tmp / "material", self.material, normal_convention=normal_convention, provenance=made_by)
+            if tileable:
+                tiled = make_tileable(self.material)
+                seams = {
+                    name: {"before": round(seam_error(x), 3), "after": round(seam_error(tiled.maps()[name]), 3)}
+                    for name, x in self.material.maps().items()
+                }
+                notes = {**made_by, "tileable": "materials.tiling.make_tileable", "seam_error": seams}
+                export_material(tmp / "material_tileable", tiled, normal_convention=normal_convention, provenance=notes)
             (tmp / "renders").mkdir()
             for k, image in enumerate(self.renders):
                 write_image_pair(tmp / "renders", f"view_{k:02d}", image)
