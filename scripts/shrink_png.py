@@ -44,6 +44,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     for path in args.paths:
         before = path.stat().st_size
         with Image.open(path) as image:
+            image.load()  # shrink may return the image itself, which is saved after the file closes
             small = shrink(image, args.bits)
         # Written beside the target and renamed, so an interrupted run leaves the original.
         fd, tmp = tempfile.mkstemp(suffix=".png", dir=path.parent)
