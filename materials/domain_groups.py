@@ -41,7 +41,7 @@ import torch.nn.functional as F
 from PIL import Image
 from torch.utils.data import Dataset
 
-from kernels.tonemap import srgb_decode
+from kernels.tonemap import srgb_decode, srgb_encode
 from materials.capture_domain import (
     CaptureDomain,
     Degradation,
@@ -59,6 +59,7 @@ from materials.types import Material
 __all__ = [
     "DomainGroups",
     "load_texture_folder",
+    "save_texture_folder",
     "crop_texture",
     "dihedral",
     "mix_materials",
@@ -145,6 +146,24 @@ def load_texture_folder(
     return Material(diffuse.contiguous(), normal.contiguous(), roughness.contiguous(), specular.contiguous()).validate(
         source=str(folder)
     )
+
+
+def save_texture_folder(folder: str | os.PathLike, material: Material) -> Path:
+    """Write ``material`` (unbatched) as a texture folder ``load_texture_folder`` reads with
+    its defaults: 8-bit RGB PNGs, diffuse and specular sRGB-encoded, roughness linear (grey
+    as RGB), normal ``(n + 1) / 2`` OpenGL. Returns the folder (created)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    maps = {
+        "diffuse": srgb_encode(material.diffuse),
+        "normal": (material.normal + 1.0) * 0.5,
+        "roughness": material.roughness.expand(3, -1, -1),
+        "specular": srgb_encode(material.specular),
+    }
+    for name, chw in maps.items():
+        codes = (chw.clamp(0, 1) * 255).round().to(torch.uint8).permute(1, 2, 0).numpy()
+        Image.fromarray(np.ascontiguousarray(codes)).save(folder / f"{name}.png")
+    return folder
 
 
 # ---------------------------------------------------------------------- augmentation

@@ -11,12 +11,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import torch
-from PIL import Image
 
 import kernels
 from estimator.config import TINY_TEST_CONFIG
 from estimator.model import SVBRDFEstimator
-from kernels.tonemap import srgb_encode
 from matcap.capture import CaptureConfig
 from matcap.capture_eval import (
     RUNS,
@@ -35,7 +33,7 @@ from matcap.capture_eval import (
 from matcap.cli import main
 from materials.camera import camera_from_fov
 from materials.dataset import EVAL_SEEDS
-from materials.io.encoding import encode_normal
+from materials.domain_groups import save_texture_folder
 from materials.lights import EVAL_LIGHTS
 from materials.procedural import generate
 from relight.interface import get_relighter
@@ -116,17 +114,7 @@ def test_inria_set_round_trips_held_out_materials():
 
 
 def _texture_folder(root, name, size=40, seed=0):
-    folder = root / name
-    folder.mkdir(parents=True)
-    m = generate(seed, size=size)
-    for file, chw in (
-        ("diffuse", srgb_encode(m.diffuse)),
-        ("normal", encode_normal(m.normal)),
-        ("roughness", m.roughness.expand(3, -1, -1)),
-        ("specular", srgb_encode(m.specular)),
-    ):
-        codes = (chw.clamp(0, 1) * 255).round().to(torch.uint8).permute(1, 2, 0).numpy()
-        Image.fromarray(np.ascontiguousarray(codes)).save(folder / f"{file}.png")
+    save_texture_folder(root / name, generate(seed, size=size))
 
 
 def test_texture_set_reads_folders_and_crops_to_size(tmp_path):

@@ -5,11 +5,9 @@ from __future__ import annotations
 import dataclasses
 import json
 
-import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
-from PIL import Image
 from safetensors.torch import load_file
 
 from estimator import SVBRDFEstimator, estimator_loss
@@ -24,10 +22,8 @@ from estimator.train import (
     select_views,
     training_data,
 )
-from kernels.tonemap import srgb_encode
 from materials.dataset import TRAIN_SEEDS, GroupConfig, RenderedGroups
-from materials.domain_groups import REAL_DEV_TRAIN, REAL_DEV_VALIDATION, DomainGroups
-from materials.io.encoding import encode_normal
+from materials.domain_groups import REAL_DEV_TRAIN, REAL_DEV_VALIDATION, DomainGroups, save_texture_folder
 from materials.procedural import generate
 from materials.types import Material
 from training.checkpoint import flatten_state, latest_checkpoint, unflatten_state
@@ -297,20 +293,10 @@ def test_normal_mse_does_not_settle_on_the_flat_median():
 
 
 def _texture_folders(root, names, size: int = 48):
-    """Texture material folders (``load_texture_folder``'s files) named ``names`` under
-    ``root``, made from procedural materials; returns ``root``."""
+    """Texture material folders named ``names`` under ``root``, made from procedural
+    materials; returns ``root``."""
     for k, name in enumerate(names):
-        folder = root / name
-        folder.mkdir(parents=True)
-        m = generate(100 + k, size=size)
-        for file, chw in (
-            ("diffuse", srgb_encode(m.diffuse)),
-            ("normal", encode_normal(m.normal)),
-            ("roughness", m.roughness.expand(3, -1, -1)),
-            ("specular", srgb_encode(m.specular)),
-        ):
-            codes = (chw.clamp(0, 1) * 255).round().to(torch.uint8).permute(1, 2, 0).numpy()
-            Image.fromarray(np.ascontiguousarray(codes)).save(folder / f"{file}.png")
+        save_texture_folder(root / name, generate(100 + k, size=size))
     return root
 
 
@@ -343,7 +329,7 @@ def test_capture_domain_data_uses_only_the_training_textures(tmp_path):
         TrainConfig(domain="photos")
     with pytest.raises(ValueError, match="capture"):
         TrainConfig(textures=str(root))  # textures only mean something in the capture domain
-    with pytest.raises(ValueError, match="p_texture"):
+    with pytest.raises(ValueError, match="p_mix"):
         TrainConfig(domain="capture", p_mix=1.5)
     cli = parse_args(["--domain", "capture", "--textures", str(root), "--p-texture", "0.25", "--p-mix", "0.2"])
     assert (cli.domain, cli.textures, cli.p_texture, cli.p_mix) == ("capture", str(root), 0.25, 0.2)
