@@ -57,6 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="the picture (PNG)")
     parser.add_argument("--figure", type=int, default=2, help="photos (rows) in the picture")
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--estimator", type=Path, default=None, help="estimator folder (default: the pipeline's)")
     args = parser.parse_args(argv)
 
     import kernels
@@ -67,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     from materials.io.encoding import chw_to_hwc, encode_normal
 
     torch.set_num_threads(args.threads)
-    pipeline = CapturePipeline.from_pretrained()
+    pipeline = CapturePipeline.from_pretrained(estimator=args.estimator)
     rows, records = [], []
     side_light = torch.tensor([[3.0, 1.0, 4.0]])
 
