@@ -374,9 +374,10 @@ def evaluate(
         for run in cfg.runs:
             kind, k = RUNS[run]
             relighter = GroundTruthRelighter(item.material) if kind == "gt" else relighters.get(kind) if kind else None
-            pipe = CapturePipeline(
-                relighter, estimator, config=replace(cfg.capture, relit=k, camera=tuple(camera.tolist()))
-            )
+            # Samples apply to a sampling relighter only (the others refuse them).
+            samples = cfg.capture.samples if getattr(relighter, "stochastic", False) else 1
+            config = replace(cfg.capture, relit=k, camera=tuple(camera.tolist()), samples=samples)
+            pipe = CapturePipeline(relighter, estimator, config=config)
             t0 = time.perf_counter()
             out = pipe(photo)
             seconds = time.perf_counter() - t0

@@ -13,6 +13,7 @@ import argparse
 import copy
 import shlex
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from matcap.args import check_at_least_one, set_sampling
@@ -131,6 +132,9 @@ def _add_capture_parser(what) -> None:
     c.add_argument("--textures", type=Path, default=None, help="folder of texture material folders (the textures set)")
     c.add_argument("--inria", type=Path, default=None, help="folder of INRIA PNGs (default: synthesised held-out ones)")
     c.add_argument("--refine", type=int, default=None, help="refinement steps (default: the pipeline's)")
+    c.add_argument(
+        "--samples", type=int, default=1, help="diffusion samples per relit view, averaged (default %(default)s)"
+    )
     c.add_argument("--estimator", type=Path, default=None, help="estimator folder (default: the shipped one)")
     c.add_argument("--num-threads", type=int, default=None, help="torch threads")
     c.add_argument("--overwrite", action="store_true", help="replace an output folder written by this command")
@@ -148,7 +152,10 @@ def run_capture(args) -> int:
     from relight.interface import get_relighter
 
     check_output_folder(args.out, overwrite=args.overwrite, marker=CAPTURE_MARKER)
-    capture = CaptureConfig() if args.refine is None else CaptureConfig(refine_steps=args.refine)
+    check_at_least_one("--samples", args.samples)
+    capture = CaptureConfig(samples=args.samples)
+    if args.refine is not None:
+        capture = replace(capture, refine_steps=args.refine)
     split = lambda text: tuple(v.strip() for v in text.split(",") if v.strip())  # noqa: E731
     try:
         cfg = CaptureEvalConfig(
