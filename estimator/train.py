@@ -34,7 +34,7 @@ from estimator.losses import MAP_WEIGHT, NORMAL_LOSSES, NORMAL_WEIGHT, RENDER_WE
 from estimator.model import SVBRDFEstimator
 from materials.capture_domain import CaptureDomain
 from materials.dataset import TRAIN_SEEDS, GroupConfig, RenderedGroups
-from materials.domain_groups import REAL_DEV_TRAIN, DomainGroups
+from materials.domain_groups import DomainGroups, training_texture_folders
 from materials.io.atomic import atomic_file, atomic_folder
 from materials.relit_pool import RelitMixedGroups
 from materials.types import Material
@@ -214,12 +214,7 @@ def training_data(cfg: TrainConfig) -> Dataset:
         return data
     if cfg.domain == "paper":
         return RenderedGroups(TRAIN_SEEDS, cfg.group_config())
-    textures = []
-    if cfg.textures is not None:
-        textures = [Path(cfg.textures) / name for name in REAL_DEV_TRAIN]
-        missing = [str(t) for t in textures if not t.is_dir()]
-        if missing:
-            raise FileNotFoundError(f"textures: {cfg.textures} lacks the training materials {missing}")
+    textures = training_texture_folders(cfg.textures) if cfg.textures is not None else []
     return DomainGroups(
         TRAIN_SEEDS,
         cfg.group_config(),

@@ -200,6 +200,17 @@ class CaptureDomain:
         linear renders. ``DomainGroups`` with it reproduces ``RenderedGroups``."""
         return cls(geometry="paper", p_falloff=0.0).without_photometric()
 
+    @classmethod
+    def relighting(cls) -> CaptureDomain:
+        """The capture domain as the capture pipeline's relighter sees it
+        (``matcap.capture``): a fixed camera with the paper's light sampling for views
+        1.. (the pipeline relights to lights around a camera that does not move) and no
+        falloff (the pipeline divides the photo by its flash's 1/d^2 factor before
+        relighting and multiplies the relit views by theirs); every photometric effect
+        of the photo (exposure, white balance, noise, clipped highlights, 8-bit, JPEG) and
+        the geometry's height, offset and crops as in ``CaptureDomain()``."""
+        return cls(p_collocated=0.0, p_falloff=0.0)
+
     def without_photometric(self) -> CaptureDomain:
         """The same geometry and falloff, every photometric effect switched off."""
         return self.switched(exposure=False, white_balance=False, noise=False, clip=False, quantize=False, jpeg=False)

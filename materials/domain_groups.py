@@ -58,6 +58,7 @@ from materials.types import Material
 
 __all__ = [
     "DomainGroups",
+    "training_texture_folders",
     "load_texture_folder",
     "save_texture_folder",
     "crop_texture",
@@ -164,6 +165,17 @@ def save_texture_folder(folder: str | os.PathLike, material: Material) -> Path:
         codes = (chw.clamp(0, 1) * 255).round().to(torch.uint8).permute(1, 2, 0).numpy()
         Image.fromarray(np.ascontiguousarray(codes)).save(folder / f"{name}.png")
     return folder
+
+
+def training_texture_folders(root: str | os.PathLike) -> list[Path]:
+    """The ``REAL_DEV_TRAIN`` material folders under ``root`` (e.g.
+    ``../shared/data/real-dev/materials``), the textures every trainer may use;
+    ``REAL_DEV_VALIDATION`` stays out. Raises ``FileNotFoundError`` naming the missing ones."""
+    folders = [Path(root) / name for name in REAL_DEV_TRAIN]
+    missing = [str(f) for f in folders if not f.is_dir()]
+    if missing:
+        raise FileNotFoundError(f"textures: {root} lacks the training materials {missing}")
+    return folders
 
 
 # ---------------------------------------------------------------------- augmentation

@@ -21,10 +21,15 @@ def diffusion_loss(
     """v-prediction MSE for a batch of groups (SPEC section 4).
 
     ``batch``: ``images [B, V, 3, H, W]`` linear (view 0: the flash photo), ``light_pos`` /
-    ``camera_pos`` ``[B, V, 3]``. Every view of a group is a target; all are conditioned on
-    the group's flash photo (specular prior) and on background features of the group's
-    renders, shuffled within the group (training-time feature shuffle). ``model`` is a
-    ``RelightDiffusion``, possibly wrapped for distributed training (called, never unwrapped).
+    ``camera_pos`` ``[B, V, 3]``, and optionally ``clean [B, V, 3, H, W]``
+    (``materials.domain_groups.DomainGroups``: ``images`` are then the degraded photos and
+    ``clean`` the same views before noise, clipping and quantisation). Every view of a group
+    is a target (``clean`` when given, else ``images``); all are conditioned on the group's
+    flash photo ``images[:, 0]`` (specular prior, residual base) and on background features
+    of the group's ``images``, shuffled within the group (training-time feature shuffle):
+    the model sees what a photo gives it and is asked for the unclipped radiance. ``model``
+    is a ``RelightDiffusion``, possibly wrapped for distributed training (called, never
+    unwrapped).
 
     ``terminal_fraction``: the share of targets whose timestep is the last one instead of a
     uniform draw. One-step sampling (trailing DDIM) asks the model only at that timestep,
@@ -34,7 +39,8 @@ def diffusion_loss(
     """
     images, light_pos, camera_pos = batch["images"], batch["light_pos"], batch["camera_pos"]
     b, v = images.shape[:2]
-    targets = images.flatten(0, 1)
+    backgrounds = images.flatten(0, 1)
+    targets = batch["clean"].flatten(0, 1) if "clean" in batch else backgrounds
     photo = images[:, :1].expand(-1, v, -1, -1, -1).flatten(0, 1)
     perm = shuffle_within_groups(b * v, v, generator).to(images.device)
     unwrapped = getattr(model, "module", model)  # DistributedDataParallel keeps the model in .module
@@ -58,7 +64,7 @@ def diffusion_loss(
         alpha_bar = scheduler.alphas_cumprod[last].to(x0)
         x_t = torch.where(pure, noise, x_t)
         target = torch.where(pure, pure_noise_velocity(x0, noise, alpha_bar), target)
-    pred = model(x_t, t, photo, targets, light_pos, camera_pos, perm, base_x)
+    pred = model(x_t, t, photo, backgrounds, light_pos, camera_pos, perm, base_x)
     return F.mse_loss(pred, target)
 
 

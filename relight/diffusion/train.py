@@ -9,6 +9,13 @@ Data order: one group (a material under 8 lights) per step in ``TRAIN_SEEDS`` or
 step ``t`` trains on groups ``t * groups_per_step ...``; a resumed run continues there with
 the torch RNG state of its checkpoint (noise, timesteps and the feature shuffle), so it
 equals an uninterrupted run.
+
+Data: ``--domain paper`` (the paper's clean renders, ``RenderedGroups``; every run before
+the option) or ``capture`` (``DomainGroups`` with ``CaptureDomain.relighting()``: the
+photo as the capture pipeline hands it to the relighter, exposure, white balance, noise,
+clipped highlights, 8-bit and JPEG, camera heights, offsets and crops of the plane, and
+the unclipped views as targets; issue 16). ``--init-from`` starts a new run from saved
+weights (e.g. the shipped model) instead of an initialisation.
 """
 
 from __future__ import annotations
@@ -25,7 +32,9 @@ from accelerate import Accelerator
 from diffusers.training_utils import EMAModel
 from torch.utils.data import DataLoader, Subset
 
+from materials.capture_domain import CaptureDomain
 from materials.dataset import TRAIN_SEEDS, GroupConfig, RenderedGroups
+from materials.domain_groups import DomainGroups, training_texture_folders
 from relight.diffusion.config import TINY_TRAINING_DEFAULTS
 from relight.diffusion.model import RelightDiffusion, make_train_scheduler
 from relight.diffusion.objective import diffusion_loss
@@ -40,7 +49,10 @@ from training.config import config_of, differences, from_dict, model_config, par
 from training.loop import Loop, resumed_line
 from training.schedule import SCHEDULES, lr_factor
 
-__all__ = ["TrainConfig", "DiffusionModelConfig", "main", "parse_args", "learning_rate"]
+__all__ = ["TrainConfig", "DiffusionModelConfig", "main", "parse_args", "learning_rate", "training_data", "DOMAINS"]
+
+#: ``TrainConfig.domain``'s values.
+DOMAINS = ("paper", "capture")
 
 #: What a new run of the tiny preset builds where ``RelightDiffusion``'s signature keeps the
 #: behaviour of old checkpoints: the three tiny-preset switches of
@@ -99,6 +111,17 @@ class TrainConfig:
         keep_every: also keep the checkpoint of every multiple of this many steps (0:
             none), e.g. for same-budget ablations or choosing a snapshot afterwards.
         threads: torch threads (0: leave torch's default).
+        domain: the training data (module docstring): ``paper`` or ``capture``.
+        textures: with ``capture``, a folder of real-texture material folders of which the
+            ``REAL_DEV_TRAIN`` ones are used (``materials.domain_groups``); none:
+            procedural materials only.
+        p_texture: with ``capture`` and ``textures``, the probability of a texture item.
+        p_mix: with ``capture``, the probability that a procedural item blends two.
+        p_paper: with ``capture``, the probability that an item is the paper's clean
+            render instead (keeps what the shipped model was trained on in the stream).
+        init_from: a saved ``RelightDiffusion`` folder (``save_pretrained``, e.g.
+            ``weights/diffusion``) whose weights start a new run; its architecture must
+            equal ``model``. Ignored when ``ckpt_dir`` has a checkpoint (the run resumes).
         model: the architecture (``RelightDiffusion``'s arguments; ``NEW_RUN_DEFAULTS``).
     """
 
@@ -116,6 +139,12 @@ class TrainConfig:
     keep_checkpoints: int = 1
     keep_every: int = 0
     threads: int = 0
+    domain: Literal["paper", "capture"] = "paper"
+    textures: str | None = None
+    p_texture: float = 0.25
+    p_mix: float = 0.0
+    p_paper: float = 0.0
+    init_from: str | None = None
     model: DiffusionModelConfig = field(default_factory=DiffusionModelConfig)
 
     def __post_init__(self) -> None:
@@ -129,6 +158,13 @@ class TrainConfig:
             raise ValueError(f"ema_decay must lie in [0, 1), got {self.ema_decay}")
         if not 0 <= self.terminal_fraction <= 1:
             raise ValueError(f"terminal_fraction must lie in [0, 1], got {self.terminal_fraction}")
+        if self.domain not in DOMAINS:
+            raise ValueError(f"domain must be one of {DOMAINS}, got {self.domain!r}")
+        if self.domain == "paper" and self.textures is not None:
+            raise ValueError("textures needs domain='capture' (the paper's data has procedural materials only)")
+        for name in ("p_texture", "p_mix", "p_paper"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
         for name in ("steps", "groups_per_step", "ckpt_every", "keep_checkpoints"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
@@ -137,6 +173,37 @@ class TrainConfig:
 def learning_rate(cfg: TrainConfig, step: int) -> float:
     """The learning rate for the update that takes the model from ``step`` to ``step + 1``."""
     return cfg.lr * lr_factor(cfg.lr_schedule, step, total=cfg.steps, decay_from=cfg.lr_decay_from)
+
+
+def training_data(cfg: TrainConfig) -> RenderedGroups | DomainGroups:
+    """The training groups of ``cfg.domain`` over ``TRAIN_SEEDS``, 8 views at the model's
+    resolution (``TrainConfig.domain``)."""
+    config = GroupConfig(size=cfg.model.resolution, views=8, seed=cfg.seed)
+    if cfg.domain == "paper":
+        return RenderedGroups(TRAIN_SEEDS, config)
+    return DomainGroups(
+        TRAIN_SEEDS,
+        config,
+        CaptureDomain.relighting(),
+        textures=training_texture_folders(cfg.textures) if cfg.textures is not None else [],
+        p_texture=cfg.p_texture,
+        p_mix=cfg.p_mix,
+        p_paper=cfg.p_paper,
+    )
+
+
+def _initial_model(cfg: TrainConfig) -> RelightDiffusion:
+    """A new run's model: ``cfg.init_from``'s weights (same architecture) or a fresh one."""
+    if cfg.init_from is None:
+        return _new_model(cfg.model)
+    folder = Path(cfg.init_from)
+    if not (folder / "config.json").is_file():
+        raise FileNotFoundError(f"init_from: {folder} is not a saved RelightDiffusion (no config.json)")
+    model = RelightDiffusion.from_pretrained(folder)
+    changed = differences(cfg.model, config_of(DiffusionModelConfig, model), ignore=("sd21_path",))
+    if changed:
+        raise ValueError(f"init_from: {folder} has another architecture (requested, saved): {changed}")
+    return model
 
 
 def main(cfg: TrainConfig) -> Path | None:
@@ -155,14 +222,14 @@ def main(cfg: TrainConfig) -> Path | None:
                 f"{folder}: checkpoint architecture differs from the requested one (requested, saved): {changed}"
             )
     else:
-        model = _new_model(cfg.model)
+        model = _initial_model(cfg)
     optimizer = torch.optim.AdamW(trainable_parameters(model), lr=cfg.lr)
     state = None
     if folder is not None:
         state = load_checkpoint(folder, optimizer=optimizer, restore_rng=False)  # the RNG: below
         accel.print(resumed_line(state))
     start = state.step if state else 0
-    data = RenderedGroups(TRAIN_SEEDS, GroupConfig(size=cfg.model.resolution, views=8, seed=cfg.seed))
+    data = training_data(cfg)
     # Items past the resumed step come next: the loader starts at the step's offset.
     loader = DataLoader(
         Subset(data, range(start * cfg.groups_per_step, len(data))),

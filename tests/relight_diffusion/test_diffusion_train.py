@@ -124,3 +124,69 @@ def test_old_architecture_flags_still_work_for_one_release(capsys):
     assert "--resolution is deprecated" in capsys.readouterr().err
     new = parse_args(["--model.resolution", "32", "--model.block-out-channels", "16,32", "--model.base", "lambertian"])
     assert new.model == cfg.model
+
+
+def test_capture_domain_data_is_what_the_pipeline_hands_the_relighter(tmp_path):
+    from materials.domain_groups import REAL_DEV_TRAIN, REAL_DEV_VALIDATION, DomainGroups, save_texture_folder
+    from materials.procedural import generate
+
+    for k, name in enumerate((*REAL_DEV_TRAIN, *REAL_DEV_VALIDATION)):
+        save_texture_folder(tmp_path / name, generate(100 + k, size=32))
+    data = train.training_data(TrainConfig(domain="capture", textures=str(tmp_path), p_texture=0.5, **SMALL))
+    assert isinstance(data, DomainGroups)
+    assert data.texture_names == list(REAL_DEV_TRAIN)  # the validation materials stay out
+    for i in range(6):
+        item = data[i]
+        assert item["images"].shape == item["clean"].shape == (8, 3, 16, 16)
+        # a fixed camera (the pipeline relights around one camera) and no falloff (the
+        # pipeline divides the photo's out before relighting)
+        assert torch.equal(item["camera_pos"], item["camera_pos"][:1].expand(8, 3))
+        assert not bool(item["inverse_square"])
+    # the clipped, quantised photos are the condition, the unclipped renders the targets
+    assert any(float(data[i]["clean"].max()) > 1.0 for i in range(6))
+    assert all(float(data[i]["images"].max()) <= 1.0 for i in range(6))
+    assert isinstance(train.training_data(TrainConfig(**SMALL)), train.RenderedGroups)
+
+
+def test_a_capture_domain_run_trains_and_init_from_starts_it_from_saved_weights(tmp_path):
+    from relight.diffusion import RelightDiffusion
+
+    torch.manual_seed(3)
+    RelightDiffusion(**TINY.__dict__).save_pretrained(tmp_path / "start")
+    start = _weights(tmp_path / "start")
+    # lr 0: the weights stay the saved ones, so the run must have started from them
+    cfg = dict(SMALL, lr=0.0)
+    last = train.main(TrainConfig(ckpt_dir=str(tmp_path / "a"), steps=1, init_from=str(tmp_path / "start"), **cfg))
+    for k, v in _weights(last / "model").items():
+        torch.testing.assert_close(v, start[k], atol=0, rtol=0, msg=k)
+    # one real step in the capture domain moves them, with a finite loss
+    last = train.main(TrainConfig(ckpt_dir=str(tmp_path / "b"), steps=1, domain="capture", **SMALL))
+    (entry,) = read_trainer_state(last)["history"]
+    assert math.isfinite(entry["loss"])
+
+
+def test_init_from_is_checked():
+    with pytest.raises(FileNotFoundError, match="no config.json"):
+        train.main(TrainConfig(ckpt_dir="runs/never", steps=1, init_from="/nonexistent", **SMALL))
+
+
+def test_init_from_refuses_another_architecture(tmp_path):
+    from relight.diffusion import RelightDiffusion
+
+    RelightDiffusion(**TINY.__dict__).save_pretrained(tmp_path / "start")
+    other = DiffusionModelConfig(resolution=16, block_out_channels=(8, 8))
+    with pytest.raises(ValueError, match="another architecture"):
+        train.main(TrainConfig(ckpt_dir=str(tmp_path / "a"), steps=1, init_from=str(tmp_path / "start"), model=other))
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (dict(domain="nosuch"), "domain must be one of"),
+        (dict(textures="x"), "textures needs domain='capture'"),
+        (dict(domain="capture", p_paper=1.5), "p_paper must be in"),
+    ],
+)
+def test_bad_data_options_are_refused(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        TrainConfig(**kwargs)

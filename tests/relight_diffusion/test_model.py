@@ -433,3 +433,34 @@ def test_terminal_targets_start_from_pure_noise(tiny_model, group_batch, denoise
     shuffle_within_groups(4, 4, gen)
     ((x_t, _),) = denoise_inputs
     assert torch.equal(x_t, torch.randn(x_t.shape, generator=gen))
+
+
+def test_clean_views_are_the_targets_and_the_degraded_ones_the_condition(tiny_model, group_batch, monkeypatch):
+    # Capture-domain groups (``DomainGroups``) carry the degraded photos in ``images`` and
+    # the unclipped views in ``clean``: the model must be conditioned on what a photo
+    # gives it (the photo's prior and base, the BCE backgrounds) and asked for ``clean``.
+    batch = group_batch(b=1, v=4, size=tiny_model.config.resolution)
+    batch["clean"] = batch["images"] * 1.5 + 0.1
+    seen_linear, seen_condition = [], []
+    original_space, original_condition = tiny_model.to_model_space, tiny_model.encode_condition
+
+    def spy_space(linear, base_x):
+        seen_linear.append(linear.clone())
+        return original_space(linear, base_x)
+
+    def spy_condition(photo, background, *rest):
+        seen_condition.append((photo.clone(), background.clone()))
+        return original_condition(photo, background, *rest)
+
+    monkeypatch.setattr(tiny_model, "to_model_space", spy_space)
+    monkeypatch.setattr(tiny_model, "encode_condition", spy_condition)
+    diffusion_loss(tiny_model, make_train_scheduler(), batch, torch.Generator().manual_seed(0))
+    ((photo, background),) = seen_condition
+    assert torch.equal(seen_linear[0], batch["clean"].flatten(0, 1))
+    assert torch.equal(background, batch["images"].flatten(0, 1))
+    assert torch.equal(photo, batch["images"][:, :1].expand(-1, 4, -1, -1, -1).flatten(0, 1))
+    # without ``clean`` the renders are both (the paper's data, every earlier run)
+    seen_linear.clear()
+    del batch["clean"]
+    diffusion_loss(tiny_model, make_train_scheduler(), batch, torch.Generator().manual_seed(0))
+    assert torch.equal(seen_linear[0], batch["images"].flatten(0, 1))
