@@ -86,6 +86,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "(default: theirs, 20 for diffusion); several, e.g. 10,1, evaluate each setting in the "
         "same run as rows 'NAME (N steps)'",
     )
+    r.add_argument(
+        "--domain",
+        choices=("paper", "capture"),
+        default="paper",
+        help="paper: clean renders, camera (0, 0, 4), the 7 evaluation lights (Table 1); capture: "
+        "phone-like photos (random camera, exposure, noise, clipped highlight, 8-bit, JPEG) and "
+        "unclipped targets (default %(default)s)",
+    )
+    r.add_argument(
+        "--first",
+        type=int,
+        default=0,
+        help="index of the first held-out material (16: the validation materials; default %(default)s)",
+    )
     r.add_argument("--chunk", type=int, default=4, help="materials per relight call (default %(default)s)")
     r.add_argument("--seed", type=int, default=0, help="generator seed of stochastic methods")
     r.add_argument("--overwrite", action="store_true", help="replace an output folder written by this command")
@@ -136,6 +150,13 @@ def _add_capture_parser(what) -> None:
         "--samples", type=int, default=1, help="diffusion samples per relit view, averaged (default %(default)s)"
     )
     c.add_argument("--estimator", type=Path, default=None, help="estimator folder (default: the shipped one)")
+    c.add_argument(
+        "--checkpoint",
+        action="append",
+        default=[],
+        metavar="NAME=PATH",
+        help="weights folder of a relighter (diffusion, bieron; repeat); default: its shipped weights",
+    )
     c.add_argument("--num-threads", type=int, default=None, help="torch threads")
     c.add_argument("--overwrite", action="store_true", help="replace an output folder written by this command")
     c.set_defaults(run=run_capture)
@@ -174,9 +195,13 @@ def run_capture(args) -> int:
             raise UsageError(f"{name} {folder} is not a folder")
     if args.num_threads:
         torch.set_num_threads(args.num_threads)
-    estimator = load_estimator(args.estimator)
     needed = sorted({RUNS[r][0] for r in cfg.runs} - {None, "gt"})
-    relighters = {name: get_relighter(name) for name in needed}
+    checkpoints = _checkpoints(args.checkpoint)
+    unused = sorted(set(checkpoints) - set(needed))
+    if unused:
+        raise UsageError(f"--checkpoint {', '.join(unused)}: no run of --runs uses it (they use: {', '.join(needed)})")
+    estimator = load_estimator(args.estimator)
+    relighters = {name: get_relighter(name, checkpoints.get(name)) for name in needed}
     command = "relight " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["eval"] else None
     report = evaluate(cfg, estimator, relighters)
     with atomic_folder(args.out, overwrite=args.overwrite, marker=CAPTURE_MARKER) as tmp:
@@ -271,7 +296,18 @@ def run(args) -> int:
 
     check_output_folder(args.out, overwrite=args.overwrite, marker=EVAL_MARKER)
     steps = _steps_list(args.steps)  # before any model is loaded
-    cfg = EvalConfig(count=args.count, size=args.size, chunk=args.chunk, samples=args.samples, seed=args.seed)
+    try:
+        cfg = EvalConfig(
+            count=args.count,
+            size=args.size,
+            chunk=args.chunk,
+            samples=args.samples,
+            seed=args.seed,
+            domain=args.domain,
+            first=args.first,
+        )
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     checkpoints = _checkpoints(args.checkpoint)
     known = relighter_names(discover=True)
     explicit = args.methods is not None

@@ -19,6 +19,15 @@ Protocol:
    times with seeded generators: one row for the first sample, and with ``samples > 1``
    one row for the per-pixel mean of the samples (averaging reduces variance).
 
+With ``domain="capture"`` (issue 16) step 2 is the capture pipeline's relighting domain
+instead (``materials.capture_domain.CaptureDomain.relighting()`` through
+``DomainGroups``): each material gets its own random camera (height, offset, crop of the
+plane) and paper-sampled target lights, and the input photo is what a phone gives
+(exposure, white balance, noise, clipped highlight, 8-bit, JPEG); the targets are the
+unclipped renders of views 1..7 (tone-mapped for the metrics like every target). ``first``
+selects the held-out seeds ``EVAL_SEEDS[first:first + count]`` (16: the validation
+materials snapshots are chosen on, apart from Table 1's).
+
 ``evaluate`` returns the result dict; ``write_report`` writes ``relight_eval.md``,
 ``relight_eval.json`` and ``relight_eval.png`` (rows: material x light; columns: input,
 ground truth, each method).
@@ -35,7 +44,9 @@ import torch
 
 import kernels
 from materials import metrics
+from materials.capture_domain import CaptureDomain
 from materials.dataset import EVAL_SEEDS, GroupConfig, RenderedGroups
+from materials.domain_groups import DomainGroups
 from materials.lights import EVAL_CAMERA, EVAL_LIGHTS, eval_lights
 from relight.interface import Relighter
 
@@ -49,7 +60,11 @@ __all__ = [
     "format_per_material",
     "EVAL_CROP_SEED",
     "step_count",
+    "EVAL_DOMAINS",
 ]
+
+#: ``EvalConfig.domain``'s values.
+EVAL_DOMAINS = ("paper", "capture")
 
 #: Seed of the evaluation crops (``GroupConfig.seed``); the materials come from EVAL_SEEDS.
 EVAL_CROP_SEED = 0
@@ -69,10 +84,19 @@ class EvalConfig:
     chunk: int = 4
     samples: int = 1
     seed: int = 0  # generator seed of stochastic relighters
+    domain: str = "paper"
+    first: int = 0
 
     def __post_init__(self) -> None:
-        if not 1 <= self.count <= len(EVAL_SEEDS):
-            raise ValueError(f"count must be in 1..{len(EVAL_SEEDS)} (held-out materials), got {self.count}")
+        if self.domain not in EVAL_DOMAINS:
+            raise ValueError(f"domain must be one of {EVAL_DOMAINS}, got {self.domain!r}")
+        if not 0 <= self.first < len(EVAL_SEEDS):
+            raise ValueError(f"first must be in 0..{len(EVAL_SEEDS) - 1}, got {self.first}")
+        if not 1 <= self.count <= len(EVAL_SEEDS) - self.first:
+            raise ValueError(
+                f"count must be in 1..{len(EVAL_SEEDS) - self.first} (held-out materials from {self.first}), "
+                f"got {self.count}"
+            )
         if self.size < 8:
             raise ValueError(f"size must be at least 8, got {self.size}")
         if self.chunk < 1 or self.samples < 1:
@@ -93,8 +117,13 @@ class EvalData:
 
 
 def load_eval_data(cfg: EvalConfig) -> EvalData:
-    """Render the held-out materials under the input flash and the 7 evaluation lights."""
-    groups = RenderedGroups(EVAL_SEEDS[: cfg.count], GroupConfig(size=cfg.size, seed=EVAL_CROP_SEED))
+    """Render the held-out materials: under the input flash and the 7 evaluation lights
+    (``paper``), or as capture-domain groups (``capture``; module docstring)."""
+    seeds = EVAL_SEEDS[cfg.first : cfg.first + cfg.count]
+    config = GroupConfig(size=cfg.size, seed=EVAL_CROP_SEED)
+    if cfg.domain == "capture":
+        return _capture_domain_data(DomainGroups(seeds, config, CaptureDomain.relighting()))
+    groups = RenderedGroups(seeds, config)
     light_pos, camera_pos = eval_lights(include_input=True)  # [8, 3]: flash, then EVAL_LIGHTS
     images = []
     for i in range(cfg.count):
@@ -107,7 +136,20 @@ def load_eval_data(cfg: EvalConfig) -> EvalData:
         target=images[:, 1:],
         light_pos=light_pos[1:].expand(n, -1, -1).clone(),
         camera_pos=torch.tensor(EVAL_CAMERA).expand(n, 3).clone(),
-        seeds=[int(s) for s in EVAL_SEEDS[: cfg.count]],
+        seeds=[int(s) for s in seeds],
+    )
+
+
+def _capture_domain_data(groups: DomainGroups) -> EvalData:
+    """Each group's degraded flash photo (view 0) and unclipped views 1.. as targets; the
+    relighting domain keeps one camera per group (``CaptureDomain.relighting``)."""
+    items = [groups[i] for i in range(len(groups))]
+    return EvalData(
+        photo=torch.stack([it["images"][0] for it in items]),
+        target=torch.stack([it["clean"][1:] for it in items]),
+        light_pos=torch.stack([it["light_pos"][1:] for it in items]),
+        camera_pos=torch.stack([it["camera_pos"][0] for it in items]),
+        seeds=[int(it["seed"]) for it in items],
     )
 
 
@@ -171,8 +213,9 @@ def evaluate(relighters: dict[str, Relighter], cfg: EvalConfig = EvalConfig(), d
     return {
         "config": cfg.__dict__.copy(),
         "seeds": data.seeds,
-        "lights": [list(p) for p in EVAL_LIGHTS],
-        "camera": list(EVAL_CAMERA),
+        # paper: the 7 lights and the camera every material shares; capture: per material.
+        "lights": [list(p) for p in EVAL_LIGHTS] if cfg.domain == "paper" else data.light_pos.tolist(),
+        "camera": list(EVAL_CAMERA) if cfg.domain == "paper" else data.camera_pos.tolist(),
         "lpips": "n/a (no LPIPS weights present locally)" if not metrics.lpips_available() else "not computed",
         "rows": rows,
         "images": images,
@@ -231,7 +274,8 @@ def format_per_material(result: dict) -> str:
     ones; this table shows where each method gains or loses its dB.
     """
     rows = result["rows"]
-    n_mat, k = len(result["seeds"]), len(result["lights"])
+    n_mat = len(result["seeds"])
+    k = len(rows[0]["per_image"]["PSNR"]) // n_mat
     head = "| seed | " + " | ".join(r["method"] for r in rows) + " |"
     lines = [head, "|---" * (len(rows) + 1) + "|"]
     for m in range(n_mat):

@@ -182,6 +182,9 @@ def test_cli_eval_capture_writes_the_report(tmp_path, estimator_folder, capsys):
         (["--sets", "textures", "--textures", "/nonexistent"], "is not a folder"),
         (["--count", "0"], "count >= 1"),
         (["--size", "32"], "size >= 64"),
+        (["--runs", "alone,gt", "--checkpoint", "diffusion=/x"], "no run of --runs uses it"),
+        (["--checkpoint", "diffusion"], "must be NAME=PATH"),
+        (["--runs", "alone,diffusion", "--checkpoint", "diffusion=/nonexistent"], "/nonexistent"),
     ],
 )
 def test_cli_eval_capture_bad_settings(tmp_path, estimator_folder, capsys, extra, message):
@@ -189,3 +192,22 @@ def test_cli_eval_capture_bad_settings(tmp_path, estimator_folder, capsys, extra
     assert main(["eval", "capture", "--out", str(out), "--estimator", str(estimator_folder), *extra]) == 2
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err and not out.exists()
+
+
+def test_cli_eval_capture_hands_the_checkpoint_to_the_relighter(tmp_path, estimator_folder, monkeypatch):
+    # --checkpoint diffusion=PATH evaluates other diffusion weights (e.g. a training
+    # snapshot) through the same pipeline; a stand-in relighter records what it was given.
+    import relight.interface
+
+    asked = []
+    real = relight.interface.get_relighter
+
+    def recording(name, checkpoint=None):
+        asked.append((name, checkpoint))
+        return real("lambertian")
+
+    monkeypatch.setattr(relight.interface, "get_relighter", recording)
+    argv = ["eval", "capture", "--out", str(tmp_path / "o"), "--sets", "procedural", "--runs", "alone,diffusion3"]
+    argv += ["--count", "1", "--size", "64", "--refine", "1", "--estimator", str(estimator_folder)]
+    assert main([*argv, "--checkpoint", f"diffusion={tmp_path / 'snapshot'}"]) == 0
+    assert asked == [("diffusion", str(tmp_path / "snapshot"))]

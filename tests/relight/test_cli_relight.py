@@ -143,3 +143,15 @@ def test_steps_help_names_the_default(capsys):
     with pytest.raises(SystemExit):
         main(["eval", "relighting", "--help"])
     assert f"{DEFAULT_STEPS} for diffusion" in " ".join(capsys.readouterr().out.split())
+
+
+def test_eval_relighting_in_the_capture_domain(tmp_path, capsys):
+    # --domain capture --first 16: the validation materials as phone-like photos; each
+    # material's own camera and lights are recorded.
+    argv = ["eval", "relighting", "--count", "2", "--size", "16", "--methods", "input", "--domain", "capture"]
+    assert main([*argv, "--first", "16", "--out", str(tmp_path / "c")]) == 0
+    blob = json.loads((tmp_path / "c" / "relight_eval.json").read_text())
+    assert blob["config"]["domain"] == "capture" and blob["config"]["first"] == 16
+    assert len(blob["camera"]) == 2 and len(blob["lights"]) == 2 and len(blob["lights"][0]) == 7
+    assert main([*argv, "--first", "63", "--out", str(tmp_path / "bad")]) == 2
+    assert "count must be in 1..1" in capsys.readouterr().err and not (tmp_path / "bad").exists()

@@ -115,3 +115,41 @@ def test_eval_data_is_held_out_and_deterministic():
     a, b = load_eval_data(EvalConfig(count=2, size=16)), load_eval_data(EvalConfig(count=2, size=16))
     assert a.seeds == [10_000_000, 10_000_001]
     assert torch.equal(a.photo, b.photo) and a.target.shape == (2, 7, 3, 16, 16)
+
+
+def test_capture_domain_data_are_degraded_photos_with_unclipped_targets():
+    # --domain capture: each material its own camera and lights, a phone-like input photo
+    # (8-bit, so at most 1 after decoding) and the unclipped views 1..7 as targets.
+    data = load_eval_data(EvalConfig(count=6, size=16, domain="capture", first=16))
+    assert data.photo.shape == (6, 3, 16, 16) and data.target.shape == (6, 7, 3, 16, 16)
+    assert data.light_pos.shape == (6, 7, 3) and data.camera_pos.shape == (6, 3)
+    assert float(data.photo.max()) <= 1.0
+    codes = kernels_tonemap_codes(data.photo)
+    assert torch.allclose(codes, codes.round(), atol=CODE_ROUND_TRIP)  # 8-bit codes after the tone map
+    assert len({tuple(c.tolist()) for c in data.camera_pos}) == 6  # a camera per material
+    from materials.dataset import EVAL_SEEDS
+
+    assert data.seeds == [int(s) for s in EVAL_SEEDS[16:22]]
+    paper = load_eval_data(EvalConfig(count=2, size=16))
+    assert torch.equal(paper.camera_pos, torch.tensor([[0.0, 0.0, 4.0]] * 2))
+
+
+#: x^2.2 then x^(1/2.2) in float32 returns an 8-bit code to within 0.0073 of itself
+#: (measured, the worst of 6 x 768 codes: the darkest ones, where x^2.2 ~ 1e-5); 0.01 code
+#: still tells 8-bit values from continuous ones, which miss by up to 0.5.
+CODE_ROUND_TRIP = 0.01
+
+
+def kernels_tonemap_codes(linear):
+    import kernels
+
+    return kernels.tonemap(linear) * 255
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [(dict(domain="nosuch"), "domain must be one of"), (dict(first=60, count=16), "count must be in 1..")],
+)
+def test_eval_config_checks_domain_and_range(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        EvalConfig(**kwargs)
