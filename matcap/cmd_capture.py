@@ -55,6 +55,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="the flash's light falloff in the photo (default inverse-square: a phone flash)",
     )
+    p.add_argument(
+        "--relit-size",
+        type=int,
+        default=None,
+        metavar="PX",
+        help="side of the relit views, a multiple of 64 (default 64, the networks' size); larger "
+        "ones are relit in 64 px tiles and refined against at that size",
+    )
     p.add_argument("--max-side", type=int, default=None, help="downscale photos longer than this (at most 2048)")
     p.add_argument("--seed", type=int, default=0, help="seed of the relighter's sampling (default 0)")
     p.add_argument(
@@ -100,6 +108,12 @@ def _config(args):
         ("--relit-weight", args.relit_weight, lambda v: 0 <= v < float("inf"), "must be a number >= 0"),
         ("--fov", args.fov, lambda v: 0 < v < 180, "must lie strictly between 0 and 180 degrees"),
         ("--max-side", args.max_side, lambda v: WORKING_SIZE <= v <= MAX_SIDE, f"must be {WORKING_SIZE}..{MAX_SIDE}"),
+        (
+            "--relit-size",
+            args.relit_size,
+            lambda v: WORKING_SIZE <= v <= MAX_SIDE and v % WORKING_SIZE == 0,
+            f"must be a multiple of {WORKING_SIZE} up to {MAX_SIDE}",
+        ),
     ]
     for flag, value, ok, rule in checks:
         if value is not None and not ok(value):
@@ -114,6 +128,7 @@ def _config(args):
         "fov": args.fov,
         "camera": parse_position(args.camera, "--camera") if args.camera else None,
         "max_side": args.max_side,
+        "relit_size": args.relit_size,
         "seed": args.seed,
     }
     return CaptureConfig(**{k: v for k, v in settings.items() if v is not None})

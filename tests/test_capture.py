@@ -212,6 +212,30 @@ def test_samples_give_a_confidence_map_with_the_shipped_diffusion_relighter(tiny
     assert out.provenance["weights"]["relighter"]["config_sha256"]
 
 
+def test_relit_views_at_a_larger_size_are_refined_against_there(tiny_estimator):
+    # relit_size 128 on a 128 px photo: the relighter relights the photo at 128, the
+    # estimator sees the views at 64 (area-downsampled), the refinement at 128.
+    photo = smooth_photo(128, 128)
+    out = pipeline(tiny_estimator, relit=2, relit_size=128, falloff="none")(photo)
+    assert out.relit.shape == (2, 3, 128, 128) and out.capture.shape == (64, 64)
+    lamb = get_relighter("lambertian")
+    camera = out.scene.camera_pos
+    direct = lamb.relight(photo[None], out.scene.relit_light_pos[None], camera[None])[0]
+    torch.testing.assert_close(out.relit, direct)  # relit from the full-size photo
+    torch.testing.assert_close(out.capture.images[1:], area_downsample(direct, 64))
+    # a size that does not divide the padded side falls back to one that does
+    assert CaptureConfig(relit_size=256).relit_side(320) == 64
+    with pytest.raises(ValueError, match="multiple of the working size"):
+        CaptureConfig(relit_size=100)
+
+
+def test_the_shipped_diffusion_relighter_relights_in_tiles_above_its_size(tiny_estimator):
+    out = CapturePipeline(
+        get_relighter("diffusion"), tiny_estimator, config=CaptureConfig(relit=1, relit_size=128, refine_steps=1)
+    )(builtin_photo(size=128))
+    assert out.relit.shape == (1, 3, 128, 128) and bool(torch.isfinite(out.relit).all())
+
+
 def test_a_deterministic_relighter_refuses_samples(tiny_estimator):
     with pytest.raises(ValueError, match="deterministic"):
         pipeline(tiny_estimator, samples=2)(smooth_photo(64, 64))
@@ -366,6 +390,7 @@ def test_cli_bad_photo_is_one_error_line_and_nothing_written(tmp_path, estimator
         (["--camera", "0,0,-1"], "below the material plane"),
         (["--relighter", "nosuch"], "unknown relighter 'nosuch'"),
         (["--relighter", "lambertian", "--samples", "2"], "applies to sampling methods"),
+        (["--relit-size", "100"], "--relit-size must be a multiple of 64"),
     ],
 )
 def test_cli_bad_settings(tmp_path, estimator_folder, capsys, extra, message):

@@ -70,6 +70,12 @@ class CaptureConfig:
         fov: field of view across the photo's long side, degrees (None: EXIF or 45).
         camera: camera (and flash) position ``(x, y, z)``, scene units; overrides ``fov``.
         working_size: the networks' resolution, pixels.
+        relit_size: side of the relit views, pixels: None keeps the working size; larger
+            (a multiple of it) relights the photo at that size, tile by tile for the
+            diffusion model (``relight.tiling``), and the refinement compares the relit
+            views there; the estimator still sees them area-downsampled to the working
+            size. The size used is the largest multiple of the working size that is at
+            most ``relit_size`` and divides the padded photo's side.
         max_side: downscale a photo whose long side exceeds it (None: refuse photos
             above ``MAX_SIDE``); at most ``MAX_SIDE``.
         seed: seed of the relighter's sampling.
@@ -90,6 +96,7 @@ class CaptureConfig:
     fov: float | None = None
     camera: tuple[float, float, float] | None = None
     working_size: int = WORKING_SIZE
+    relit_size: int | None = None
     max_side: int | None = None
     seed: int = 0
     clip_aware: bool = True
@@ -116,6 +123,11 @@ class CaptureConfig:
                 f"camera must be three finite numbers with z > 0, got {self.camera}",
             )
         need(self.working_size >= 16, f"working_size must be at least 16, got {self.working_size}")
+        if self.relit_size is not None:
+            need(
+                self.relit_size >= self.working_size and self.relit_size % self.working_size == 0,
+                f"relit size must be a multiple of the working size {self.working_size}, got {self.relit_size}",
+            )
         if self.max_side is not None:
             need(
                 self.working_size <= self.max_side <= MAX_SIDE,
@@ -124,3 +136,15 @@ class CaptureConfig:
 
     def to_dict(self) -> dict:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
+
+    def relit_side(self, side: int) -> int:
+        """The relit views' side for a padded photo of ``side`` pixels (a multiple of the
+        working size): the largest multiple of the working size that is at most
+        ``relit_size`` (None: the working size) and divides ``side``.
+
+        >>> CaptureConfig(relit_size=256).relit_side(512), CaptureConfig(relit_size=256).relit_side(320)
+        (256, 64)
+        """
+        ws = self.working_size
+        largest = min(self.relit_size or ws, side)
+        return next(s for s in range(largest - largest % ws, ws - 1, -ws) if side % s == 0)

@@ -75,7 +75,7 @@ class CaptureOutput:
                             of the maps (offset-and-blend; its ``export.json`` records each
                             map's seam error before and after)
         renders/view_KK.exr/.png   re-renders on the photo's grid: 00 the flash, 01.. RENDER_LIGHTS
-        relit/relit_KK.exr/.png    relit views at the working resolution (no falloff)
+        relit/relit_KK.exr/.png    relit views at the relit size (no falloff)
         confidence.exr/.png        std across relighting samples (only with samples >= 2)
         capture/            our capture format (capture.json + 0.png ... K.png): the
                             estimator's input, so ``relight estimate capture/`` reruns it

@@ -136,8 +136,9 @@ class CapturePipeline:
             if self.relighter is None:
                 raise ValueError(f"relit = {config.relit} needs a relighter; the pipeline has none")
             native = native_resolution(self.relighter)
-            if native is not None and native != config.working_size:
-                raise ValueError(f"the relighter works at {native} px only, the working size is {config.working_size}")
+            size = config.relit_size or config.working_size
+            if native is not None and native > size:
+                raise ValueError(f"the relighter needs at least {native} px, the relit size is {size}")
             if config.samples >= 2 and not getattr(self.relighter, "stochastic", False):
                 raise ValueError(f"samples = {config.samples}: the relighter is deterministic, its samples would agree")
         return photo
@@ -183,23 +184,25 @@ class CapturePipeline:
             scene = self.scene(photo, frame, cfg)
             camera, height = scene.camera_pos, float(scene.camera_pos[2])
             photo_mask = frame.valid_mask()
-            relit_mask = area_downsample(photo_mask.float()[None], ws)[0] >= 1.0  # working pixels all real
+            rs = cfg.relit_side(side)
+            relit_mask = area_downsample(photo_mask.float()[None], rs)[0] >= 1.0  # relit pixels all real
             if cfg.falloff == "inverse-square":
                 model_image = image / falloff_factor(camera[None], height, side, frame.plane_size)[0]
             else:
                 model_image = image
             working = area_downsample(model_image, ws)
+            relit_input = working if rs == ws else area_downsample(model_image, rs)
 
-        # 3. Relight the working photo to the K lights (mean and std over samples).
+        # 3. Relight the photo at the relit size to the K lights (mean and std over samples).
         with stage("3 relight"):
-            relit, std = torch.zeros(0, 3, ws, ws), None
+            relit, std = torch.zeros(0, 3, rs, rs), None
             if k:
                 for attr, value in (("steps", cfg.steps), ("num_samples", 1)):
                     if value is not None and hasattr(self.relighter, attr):
                         setattr(self.relighter, attr, value)
                 generator = torch.Generator().manual_seed(cfg.seed)
                 relit, std = relight_views(
-                    self.relighter, working, scene.relit_light_pos, camera, samples=cfg.samples,
+                    self.relighter, relit_input, scene.relit_light_pos, camera, samples=cfg.samples,
                     generator=generator, progress=progress,
                 )  # fmt: skip
             confidence = frame.to_photo(std.mean(dim=(0, 1))[None]) if std is not None else None
@@ -207,7 +210,7 @@ class CapturePipeline:
         # 4. One capture: the photo as view 0, the relit views after it.
         with stage("4 capture"):
             capture = Capture(
-                images=torch.cat([working[None], relit]),
+                images=torch.cat([working[None], relit if rs == ws else area_downsample(relit, ws)]),
                 light_pos=torch.cat([camera[None], scene.relit_light_pos]),
                 camera_pos=camera.expand(1 + k, 3).clone(),
                 preset="dgrsise",
@@ -215,7 +218,7 @@ class CapturePipeline:
                 meta={
                     "made_by": "relight capture",
                     "photo": photo.path,
-                    "views": "0: the photo (area-downsampled to the working size), 1..K: relit views",
+                    "views": "0: the photo, 1..K: relit views, all area-downsampled to the working size",
                     "falloff": "photo divided by the flash's 1/d^2 factor (no-falloff convention)"
                     if cfg.falloff == "inverse-square"
                     else "none assumed",
@@ -239,7 +242,7 @@ class CapturePipeline:
             # ceiling moves with the falloff conversion.
             targets, ceiling = relit, torch.ones(k, 1, 1, 1)
             if cfg.falloff == "inverse-square" and k:
-                ceiling = falloff_factor(scene.relit_light_pos, height, ws, frame.plane_size)
+                ceiling = falloff_factor(scene.relit_light_pos, height, rs, frame.plane_size)
                 targets = relit * ceiling
             photo_ceiling = 1.0 if photo.format != "exr" else None
             history: list[float] = []
@@ -314,7 +317,7 @@ class CapturePipeline:
             "files": {
                 "material/": "maps: EXR linear, PNG (diffuse/specular/basecolor sRGB, others linear), material.glb",
                 "renders/view_KK": "re-renders on the photo's grid: 00 the flash, 01.. the evaluation lights",
-                "relit/relit_KK": "relit views at the working resolution, the relighter's output (no falloff)",
+                "relit/relit_KK": "relit views at the relit size (CaptureConfig.relit_side), the relighter's output (no falloff)",
                 "confidence": "std across relighting samples, mean over views and channels (high = uncertain)",
                 "capture/": "the estimator's input in our capture format (relight estimate reruns it)",
                 "preview.png": "rows: photo + relit views; maps (diffuse, normal, roughness, specular, "

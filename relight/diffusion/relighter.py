@@ -12,13 +12,21 @@ from diffusers import DDIMScheduler
 from relight.diffusion.model import CONFIG_NAME, RelightDiffusion
 from relight.diffusion.pipeline import DEFAULT_STEPS, RelightPipeline
 from relight.interface import Relighter
+from relight.tiling import DEFAULT_OVERLAP, tiled_relight
 from weights import weights_dir
 
 __all__ = ["DiffusionRelighter", "load_diffusion_relighter"]
 
 
 class DiffusionRelighter(Relighter):
-    """Relights with ``RelightPipeline``; stochastic (seed it with ``generator``)."""
+    """Relights with ``RelightPipeline``; stochastic (seed it with ``generator``).
+
+    A photo of the model's resolution is relit whole; a larger square one (any side >=
+    the resolution) tile by tile, each tile a window of the plane in its own frame,
+    blended across ``overlap`` pixels (``relight.tiling``). The model sees windows of the
+    plane at the scale it was trained on only if its training included such crops (the
+    capture-domain runs: ``CaptureDomain.p_crop``).
+    """
 
     name = "diffusion"
     stochastic = True
@@ -29,24 +37,46 @@ class DiffusionRelighter(Relighter):
         steps: int = DEFAULT_STEPS,
         num_samples: int = 1,
         scheduler: DDIMScheduler | None = None,
+        overlap: int = DEFAULT_OVERLAP,
     ):
         self.pipeline = RelightPipeline(model, scheduler)
         self.steps = steps
         self.num_samples = num_samples
+        self.overlap = overlap
+
+    @property
+    def resolution(self) -> int:
+        """The model's native tile side in pixels."""
+        return int(self.pipeline.model.config.resolution)
 
     def _relight(self, photo, light_pos, camera_pos, *, generator=None):
-        outs = [
-            self.pipeline(
-                photo[b].float(),
-                light_pos[b].float(),
-                camera_pos[b].float(),
+        res = self.resolution
+        h, w = photo.shape[-2:]
+        if h != w or h < res:
+            raise ValueError(
+                f"photo must be square with a side of at least the model's resolution {res} "
+                f"(larger ones are relit in tiles), got {h} x {w}"
+            )
+
+        def one(image: torch.Tensor, light: torch.Tensor, camera: torch.Tensor) -> torch.Tensor:
+            return self.pipeline(
+                image,
+                light,
+                camera,
                 num_inference_steps=self.steps,
                 num_samples=self.num_samples,
                 generator=generator,
                 progress=False,
             )
-            for b in range(photo.shape[0])
-        ]
+
+        outs = []
+        for b in range(photo.shape[0]):
+            image, light, camera = photo[b].float(), light_pos[b].float(), camera_pos[b].float()
+            if h == res:
+                outs.append(one(image, light, camera))
+            else:
+                plane = float(self.pipeline.model.config.plane_size)
+                outs.append(tiled_relight(one, image, light, camera, tile=res, overlap=self.overlap, plane_size=plane))
         return torch.stack(outs).to(photo.device, photo.dtype)
 
 
