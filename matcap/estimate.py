@@ -1,9 +1,10 @@
 """SVBRDF estimation from a capture held in memory: the function behind
 ``relight estimate``, also fed directly by the relighting output later.
 
-Positions are converted to the estimator's scene units (the ``dgrsise`` plane of side
-4) by scaling with 4 / plane_size; refinement renders in the capture's own preset, so
-the fit is against the photos' real lighting (falloff and intensity included).
+The estimator sees the capture in the models' units (``materials.units.to_model_units``:
+positions scaled to the ``dgrsise`` plane of side 4, each view's radiance converted to a
+light of intensity pi without falloff, as in training), and so does the refinement, which
+renders in that convention.
 """
 
 from __future__ import annotations
@@ -15,8 +16,8 @@ import torch.nn.functional as F
 
 from estimator.model import SVBRDFEstimator
 from estimator.refine import refine
-from kernels.presets import get_preset
 from materials.types import Capture, Material
+from materials.units import MODEL_PLANE_SIZE, to_model_units
 from weights import weights_dir
 
 __all__ = ["estimate_material", "load_estimator"]
@@ -66,18 +67,18 @@ def estimate_material(
     Returns:
         (unbatched ``Material`` at the capture's resolution, refinement loss history).
     """
-    preset = get_preset(capture.preset)
-    plane = capture.plane_size or preset.plane_size
-    scale = model.config.plane_size / plane
-    images = _to_multiple(capture.images, model.downsample_factor)[None]
-    light_pos, camera_pos = capture.light_pos[None] * scale, capture.camera_pos[None] * scale
+    if model.config.plane_size != MODEL_PLANE_SIZE:
+        raise ValueError(
+            f"the estimator's plane is {model.config.plane_size}; the models' units have {MODEL_PLANE_SIZE}"
+        )
+    model_capture = to_model_units(capture)
+    images = _to_multiple(model_capture.images, model.downsample_factor)[None]
+    light_pos, camera_pos = model_capture.light_pos[None], model_capture.camera_pos[None]
     history: list[float] = []
     if refine_steps > 0:
-        # Refinement renders in model units with the capture's intensity and falloff;
-        # the 1/d^2 falloff is scale-dependent, so the intensity is rescaled to match.
-        intensity = capture.intensity or preset.intensity
-        if preset.inverse_square:
-            intensity = tuple(v * scale * scale for v in intensity)
+        # In model units the photos are renders of the dgrsise convention (no falloff,
+        # intensity pi), so the fit renders that way; the log-L1 loss is nearly
+        # invariant to the per-pixel gain, so this is the fit in the capture's own lighting.
         result = refine(
             model,
             images,
@@ -85,9 +86,8 @@ def estimate_material(
             camera_pos,
             steps=refine_steps,
             progress=progress,
-            preset=preset,
+            preset="dgrsise",
             plane_size=model.config.plane_size,
-            intensity=intensity,
         )
         material, history = result.material, result.history
     else:

@@ -14,6 +14,7 @@ from matcap.capture.config import DEFAULT_FALLOFF, RENDER_LIGHTS
 from materials.camera import DEFAULT_FOV_DEG, camera_height, fov_from_exif
 from materials.frame import Frame
 from materials.io.photo import Photo
+from materials.units import model_gain
 
 
 @dataclass(frozen=True)
@@ -90,10 +91,10 @@ def falloff_factor(light_pos: torch.Tensor, reference_height: float, size: int, 
     Returns:
         ``[K, 1, size, size]`` float32.
     """
-    x, y = _plane_grid(size, plane_size, torch.float64)
-    p = light_pos.to(torch.float64)[:, :, None, None]
-    d2 = (p[:, 0] - x) ** 2 + (p[:, 1] - y) ** 2 + p[:, 2] ** 2
-    return (reference_height**2 / d2)[:, None].float()
+    # The flash's power pi h^2 is what makes the factor 1 under it (materials.units: the
+    # models' gain of a light of intensity I with falloff is pi d^2 / I).
+    power = (math.pi * reference_height**2,) * 3
+    return 1.0 / model_gain(light_pos, (size, size), plane_size, power, inverse_square=True)[:, :1]
 
 
 def capture_scene(
