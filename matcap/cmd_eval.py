@@ -149,6 +149,9 @@ def _add_capture_parser(what) -> None:
     c.add_argument(
         "--samples", type=int, default=1, help="diffusion samples per relit view, averaged (default %(default)s)"
     )
+    c.add_argument(
+        "--relit-size", type=int, default=None, help="side of the relit views (default: the working size, 64)"
+    )
     c.add_argument("--estimator", type=Path, default=None, help="estimator folder (default: the shipped one)")
     c.add_argument(
         "--checkpoint",
@@ -174,7 +177,10 @@ def run_capture(args) -> int:
 
     check_output_folder(args.out, overwrite=args.overwrite, marker=CAPTURE_MARKER)
     check_at_least_one("--samples", args.samples)
-    capture = CaptureConfig(samples=args.samples)
+    try:
+        capture = CaptureConfig(samples=args.samples, relit_size=args.relit_size)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     if args.refine is not None:
         capture = replace(capture, refine_steps=args.refine)
     split = lambda text: tuple(v.strip() for v in text.split(",") if v.strip())  # noqa: E731

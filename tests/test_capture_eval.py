@@ -184,6 +184,7 @@ def test_cli_eval_capture_writes_the_report(tmp_path, estimator_folder, capsys):
         (["--size", "32"], "size >= 64"),
         (["--runs", "alone,gt", "--checkpoint", "diffusion=/x"], "no run of --runs uses it"),
         (["--checkpoint", "diffusion"], "must be NAME=PATH"),
+        (["--relit-size", "100"], "relit size must be a multiple of the working size"),
         (["--runs", "alone,diffusion", "--checkpoint", "diffusion=/nonexistent"], "/nonexistent"),
     ],
 )
