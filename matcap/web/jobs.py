@@ -453,7 +453,7 @@ class JobQueue:
         job = self.store.read(job_id)
         out = folder / "out"
         argv = self.command(folder / job.input, out, CaptureOptions.from_dict(job.options))
-        self.store.update(job_id, state="running", stage="starting", percent=0.0, started=time.time())
+        self.store.update(job_id, state="running", stage=Progress().label(), percent=0.0, started=time.time())
         progress, tail = Progress(), []
         with open(folder / "log.txt", "w", encoding="utf-8") as log:
             log.write("$ relight " + " ".join(argv[3:]) + "\n")

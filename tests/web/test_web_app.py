@@ -118,6 +118,9 @@ def test_listens_on_loopback_only_unless_host_says_otherwise(server, make_server
 # ---------------------------------------------------------------------- capture
 def test_upload_capture_result_and_downloads(server, page):
     start = time.monotonic()
+    # No network at run time: everything the page loads comes from the app.
+    foreign: list[str] = []
+    page.on("request", lambda r: r.url.startswith((server.url + "/", "data:", "blob:")) or foreign.append(r.url))
     page.goto(server.url)
     page.evaluate(RECORD_RUNNING_TEXTS)
     set_fast_options(page)
@@ -174,6 +177,7 @@ def test_upload_capture_result_and_downloads(server, page):
     page.reload()
     page.wait_for_function(f"document.body.dataset.viewerJob === '{job_id}'", timeout=30_000)
     assert page.locator("#maps img").count() == 4
+    assert foreign == []
     print(f"\none fast capture through the page: {elapsed:.1f} s")
 
     # The capture's own re-render under the flash is kernels.render of its maps: the
@@ -198,6 +202,7 @@ def test_jpeg_and_exr_photos_capture(server, page, tmp_path):
     write_exr(tmp_path / "linear.exr", photo.image.permute(1, 2, 0).numpy())
     page.goto(server.url)
     set_fast_options(page)
+    page.fill("#fov", "60")
     files = [
         {"name": "wood.jpg", "mimeType": "image/jpeg", "buffer": jpeg.getvalue()},
         {"name": "linear.exr", "mimeType": "image/x-exr", "buffer": (tmp_path / "linear.exr").read_bytes()},
@@ -207,8 +212,11 @@ def test_jpeg_and_exr_photos_capture(server, page, tmp_path):
     ids = page.eval_on_selector_all("#jobs li[data-job-id]", "els => els.map(e => e.dataset.jobId)")
     for job_id in ids:
         wait_done(page, job_id, timeout_s=2 * CAPTURE_TIMEOUT_S)
-    formats = sorted(server.get_json(f"/api/jobs/{job_id}")["photo_format"] for job_id in ids)
-    assert formats == ["exr", "jpeg"]
+    statuses = [server.get_json(f"/api/jobs/{job_id}") for job_id in ids]
+    assert sorted(status["photo_format"] for status in statuses) == ["exr", "jpeg"]
+    for job_id in ids:  # the page's camera setting reached the capture
+        provenance = json.loads(server.get(f"/api/jobs/{job_id}/files/provenance.json")[1])
+        assert (provenance["scene"]["camera_source"], provenance["scene"]["fov_deg"]) == ("fov", 60.0)
     assert page.locator("#error").is_hidden()
 
 
