@@ -453,7 +453,7 @@ class JobQueue:
         job = self.store.read(job_id)
         out = folder / "out"
         argv = self.command(folder / job.input, out, CaptureOptions.from_dict(job.options))
-        self.store.update(job_id, state="running", stage="starting", percent=0.0, started=time.time())
+        self.store.update(job_id, state="running", stage=Progress().label(), percent=0.0, started=time.time())
         progress, tail = Progress(), []
         with open(folder / "log.txt", "w", encoding="utf-8") as log:
             log.write("$ relight " + " ".join(argv[3:]) + "\n")
@@ -472,13 +472,15 @@ class JobQueue:
             if cancelled:
                 _kill(proc)
             last_write, last_label = 0.0, ""
-            for segment in _segments(proc.stdout):
+            for segment, complete in _segments(proc.stdout):
+                if not complete and not _ANSI.sub("", segment).rstrip().endswith("]"):
+                    continue  # part of a line or of a bar: wait for the rest
                 if parse_progress(segment, progress):
                     label, now = progress.label(), time.monotonic()
                     if label != last_label or now - last_write > _WRITE_INTERVAL_S:
                         self.store.update(job_id, stage=label, percent=progress.percent)
                         last_write, last_label = now, label
-                elif text := _ANSI.sub("", segment).strip():
+                elif complete and (text := _ANSI.sub("", segment).strip()):
                     log.write(text + "\n")
                     log.flush()
                     tail = (tail + [text])[-_TAIL_LINES:]
@@ -509,8 +511,12 @@ class JobQueue:
         self.store.update(job_id, state="done", stage="done", percent=100.0, finished=time.time(), returncode=rc)
 
 
-def _segments(stream) -> Iterable[str]:
-    """Pieces of a byte stream split at ``\\r`` and ``\\n`` (tqdm redraws with ``\\r``)."""
+def _segments(stream) -> Iterable[tuple[str, bool]]:
+    """Pieces of a byte stream split at ``\\r`` and ``\\n`` (tqdm redraws with ``\\r``), as
+    ``(text, complete)``. tqdm writes ``\\r`` *before* each bar, so the bar on screen is the
+    piece after the last separator, complete only once the next redraw starts: it is also
+    yielded as it stands after every read (``complete=False``), else the page would show
+    the previous bar for as long as a step runs."""
     buf = b""
     while True:
         chunk = stream.read1(65536) if hasattr(stream, "read1") else stream.read(65536)
@@ -519,9 +525,11 @@ def _segments(stream) -> Iterable[str]:
         buf += chunk
         *pieces, buf = re.split(rb"[\r\n]", buf)
         for piece in pieces:
-            yield piece.decode("utf-8", errors="replace")
+            yield piece.decode("utf-8", errors="replace"), True
+        if buf:
+            yield buf.decode("utf-8", errors="replace"), False
     if buf:
-        yield buf.decode("utf-8", errors="replace")
+        yield buf.decode("utf-8", errors="replace"), True
 
 
 def _failure_message(rc: int, tail: list[str]) -> str:

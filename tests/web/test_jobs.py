@@ -161,6 +161,38 @@ def test_queue_runs_jobs_and_reports_the_outcome(tmp_path, script, state, error)
         assert error in job["error"]
 
 
+# Draws the bar of a long step (tqdm: "\\r" first, the bar, no line end) and stays in it.
+LONG_STEP = """
+import sys, time
+for n, stage in ((3, "4 capture"), (4, "5 estimate")):
+    sys.stderr.write(f"\\rcapture: {100*n//8:3d}%|#####     | {n}/8 [00:00<00:00, 1step/s, {stage}]  ")
+    sys.stderr.flush()
+time.sleep(60)
+"""
+
+
+def test_the_status_shows_the_step_running_now(tmp_path):
+    # The bar on screen is not followed by a separator until the next redraw; the status
+    # must show it while the step runs, not the bar before it.
+    store = JobStore(tmp_path / "data")
+    queue = JobQueue(store, command=stand_in(LONG_STEP))
+    queue.start()
+    try:
+        job_id = make_job(store, tmp_path)
+        queue.submit(job_id)
+        deadline = time.monotonic() + JOB_TIMEOUT_S
+        while store.read(job_id).stage != "step 5/8: estimate" and time.monotonic() < deadline:
+            time.sleep(0.05)
+        job = store.read(job_id)
+        assert (job.state, job.stage, job.percent) == ("running", "step 5/8: estimate", 50.0)
+        assert queue.cancel(job_id)
+        wait_final(store, job_id)
+    finally:
+        queue.stop()
+    # The bar went to the status, not to the log.
+    assert "capture:" not in (store.folder(job_id) / "log.txt").read_text()
+
+
 def test_queue_is_bounded_cancellable_and_survives_a_restart(tmp_path):
     store = JobStore(tmp_path / "data")
     queue = JobQueue(store, max_pending=2, command=stand_in(SLEEPS))

@@ -24,6 +24,7 @@ from matcap.capture import builtin_photo
 from matcap.web.jobs import CaptureOptions, JobStore
 from materials.frame import Frame
 from materials.io import export_material
+from materials.io.exr import write_exr
 from materials.procedural import generate
 
 #: The fast capture the tests run (seconds on a CPU; the app's behaviour does not depend on it).
@@ -45,6 +46,18 @@ def photo_png(seed: int, size: int = 64) -> bytes:
     buf = io.BytesIO()
     Image.fromarray(codes).save(buf, format="PNG")
     return buf.getvalue()
+
+
+# Installed in the page before an upload: every distinct text a running job's line shows.
+RECORD_RUNNING_TEXTS = """() => {
+  window.runningTexts = [];
+  new MutationObserver(() => {
+    for (const li of document.querySelectorAll('#jobs li[data-state="running"]')) {
+      const text = li.querySelector('.stage').textContent;
+      if (window.runningTexts.at(-1) !== text) window.runningTexts.push(text);
+    }
+  }).observe(document.getElementById('jobs'), { subtree: true, childList: true, characterData: true, attributes: true });
+}"""
 
 
 def set_fast_options(page) -> None:
@@ -105,7 +118,11 @@ def test_listens_on_loopback_only_unless_host_says_otherwise(server, make_server
 # ---------------------------------------------------------------------- capture
 def test_upload_capture_result_and_downloads(server, page):
     start = time.monotonic()
+    # No network at run time: everything the page loads comes from the app.
+    foreign: list[str] = []
+    page.on("request", lambda r: r.url.startswith((server.url + "/", "data:", "blob:")) or foreign.append(r.url))
     page.goto(server.url)
+    page.evaluate(RECORD_RUNNING_TEXTS)
     set_fast_options(page)
     page.set_input_files("#photo", files=[{"name": "wood.png", "mimeType": "image/png", "buffer": photo_png(3)}])
     page.wait_for_selector("#jobs li[data-job-id]", timeout=30_000)
@@ -118,6 +135,14 @@ def test_upload_capture_result_and_downloads(server, page):
     )
     wait_done(page, job_id)
     elapsed = time.monotonic() - start
+    # While it ran the page said which step and how far, and the number moved: the
+    # "starting" text (the imports take seconds) and at least one step of the 8 (the steps
+    # after the imports take about 3 s here, six polls of the page).
+    texts = page.evaluate("window.runningTexts")
+    print(f"\nwhile running the page showed: {texts}")
+    percents = [int(re.match(r"^(\d+) % \u00b7 \S", t)[1]) for t in texts]
+    assert any(re.search(r"step [1-8]/8: [a-z]", t) for t in texts)
+    assert percents == sorted(percents) and len(set(percents)) >= 2
 
     # The relit views (2), their lights in the diagram, the four maps, all decoded.
     page.wait_for_function(f"document.body.dataset.viewerJob === '{job_id}'", timeout=30_000)
@@ -152,6 +177,7 @@ def test_upload_capture_result_and_downloads(server, page):
     page.reload()
     page.wait_for_function(f"document.body.dataset.viewerJob === '{job_id}'", timeout=30_000)
     assert page.locator("#maps img").count() == 4
+    assert foreign == []
     print(f"\none fast capture through the page: {elapsed:.1f} s")
 
     # The capture's own re-render under the flash is kernels.render of its maps: the
@@ -166,6 +192,55 @@ def test_upload_capture_result_and_downloads(server, page):
     print(f"viewer at the flash vs the capture's renders/view_00.png: PSNR {score:.1f} dB")
     assert score >= VIEWER_PSNR_DB
     page.set_viewport_size({"width": 1280, "height": 900})
+
+
+def test_jpeg_and_exr_photos_capture(server, page, tmp_path):
+    # The other formats the page accepts, through the page (PNG: the test above).
+    photo = builtin_photo("4", size=64)
+    jpeg = io.BytesIO()
+    Image.open(io.BytesIO(photo_png(4))).save(jpeg, format="JPEG", quality=92)
+    write_exr(tmp_path / "linear.exr", photo.image.permute(1, 2, 0).numpy())
+    page.goto(server.url)
+    set_fast_options(page)
+    page.fill("#fov", "60")
+    files = [
+        {"name": "wood.jpg", "mimeType": "image/jpeg", "buffer": jpeg.getvalue()},
+        {"name": "linear.exr", "mimeType": "image/x-exr", "buffer": (tmp_path / "linear.exr").read_bytes()},
+    ]
+    page.set_input_files("#photo", files=files)
+    page.wait_for_function("document.querySelectorAll('#jobs li[data-job-id]').length === 2", timeout=30_000)
+    ids = page.eval_on_selector_all("#jobs li[data-job-id]", "els => els.map(e => e.dataset.jobId)")
+    for job_id in ids:
+        wait_done(page, job_id, timeout_s=2 * CAPTURE_TIMEOUT_S)
+    statuses = [server.get_json(f"/api/jobs/{job_id}") for job_id in ids]
+    assert sorted(status["photo_format"] for status in statuses) == ["exr", "jpeg"]
+    for job_id in ids:  # the page's camera setting reached the capture
+        provenance = json.loads(server.get(f"/api/jobs/{job_id}/files/provenance.json")[1])
+        assert (provenance["scene"]["camera_source"], provenance["scene"]["fov_deg"]) == ("fov", 60.0)
+    assert page.locator("#error").is_hidden()
+
+
+def test_a_drop_uploads_and_a_drop_beside_the_zone_keeps_the_page(server, page):
+    page.goto(server.url)
+    page.wait_for_selector("#relighter option", state="attached")
+    # A drop, as the browser delivers one (a DataTransfer holding a File), on the zone
+    # reaches the upload: this one is not an image, so the server's message shows.
+    dropped = page.evaluate(
+        """() => {
+        const dt = new DataTransfer();
+        dt.items.add(new File(['this is not an image\\n'.repeat(10)], 'notes.png', { type: 'image/png' }));
+        const ev = (type, target) => target.dispatchEvent(
+          new DragEvent(type, { dataTransfer: dt, bubbles: true, cancelable: true }));
+        for (const type of ['dragenter', 'dragover']) ev(type, document.getElementById('drop'));
+        ev('drop', document.getElementById('drop'));
+        // Beside the zone the page takes the drop (no default: the browser would open the file).
+        return { beside: !ev('dragover', document.querySelector('header')) && !ev('drop', document.querySelector('header')) };
+    }"""
+    )
+    page.wait_for_selector("#error:not([hidden])", timeout=30_000)
+    assert "notes.png" in page.inner_text("#error") and "not a PNG, JPEG or EXR" in page.inner_text("#error")
+    assert dropped["beside"]
+    assert page.locator("#jobs li").count() == 0
 
 
 # ---------------------------------------------------------------------- the viewer

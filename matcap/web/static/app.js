@@ -85,6 +85,14 @@ function setupDrop() {
     drop.addEventListener(type, (e) => { e.preventDefault(); drop.classList.remove("over"); });
   }
   drop.addEventListener("drop", (e) => uploadAll(e.dataTransfer.files));
+  // A file dropped beside the drop zone would make the browser open it in place of the page.
+  for (const type of ["dragover", "drop"]) {
+    window.addEventListener(type, (e) => {
+      if (drop.contains(e.target)) return;
+      e.preventDefault();
+      if (e.dataTransfer) e.dataTransfer.dropEffect = "none"; // the "not here" cursor
+    });
+  }
 }
 
 // ---------------------------------------------------------------- the job list
@@ -113,6 +121,8 @@ function render(id, status) {
   li.querySelector(".name").title = `${status.photo_name} (${id})`;
   li.querySelector("progress").value = status.percent || 0;
   let text = status.stage;
+  // The number next to the bar: the bar alone does not say how far a slow step is.
+  if (status.state === "running") text = `${Math.round(status.percent || 0)} % \u00b7 ${status.stage}`;
   if (status.state === "queued") text = status.queue_position ? `waiting (${status.queue_position} in the queue)` : "waiting";
   if (status.state === "failed") text = `failed: ${status.error}`;
   if (status.state === "done") text = `done in ${Math.round(status.finished - status.started)} s`;
