@@ -16,7 +16,10 @@ Rows: the shipped estimator on view 0 alone and on all 8 views, fed
 - ``raw``: the photos as read, positions scaled to the plane of side 4 (what
   ``relight estimate`` did before ``materials.units``);
 - ``model units``: ``materials.units.to_model_units`` (each view's radiance converted to
-  intensity pi without falloff), what ``relight estimate`` does now.
+  intensity pi without falloff), what ``relight estimate`` does now;
+- ``dgrsise geometry`` (the reference the issue compares with): the same materials in the
+  paper's evaluation setup, camera and flash at (0, 0, 4), views 1..7 under the
+  ``EVAL_LIGHTS``, no falloff, 8-bit.
 
 No refinement. Scores: re-render PSNR of the predicted vs the true maps under the 16
 ``HELDOUT_LIGHTS`` (``scripts/eval_domain.rerender_psnr``) and the map MSEs. Writes
@@ -86,6 +89,15 @@ def write_materialgan(folder: Path, capture: Capture) -> None:
     (folder / "light_power.txt").write_text(f"{LIGHT_POWER} {LIGHT_POWER} {LIGHT_POWER}\n")
 
 
+def paper_views(material: Material) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(images ``[8, 3, H, W]`` 8-bit, light_pos, camera_pos): flash + ``EVAL_LIGHTS`` from (0, 0, 4)."""
+    from materials.lights import eval_lights
+
+    light, camera = eval_lights(include_input=True)
+    images = kernels.render(*(t[None] for t in material.map_tensors()), light, camera)[0]
+    return inverse_tonemap((tonemap(images) * 255).round() / 255), light, camera.expand(len(light), 3).clone()
+
+
 def rerender_psnr(pred: Material, true: Material) -> float:
     from estimator.evaluate import heldout_lights
     from materials import metrics
@@ -121,6 +133,7 @@ def main() -> None:
             feeds = {
                 "raw": (capture.images, capture.light_pos * scale, capture.camera_pos * scale),
                 "model units": (converted.images, converted.light_pos, converted.camera_pos),
+                "dgrsise geometry": paper_views(true),
             }
             for feed, (images, light, camera) in feeds.items():
                 for n in (1, VIEWS):
