@@ -29,19 +29,11 @@ import tempfile
 import time
 from pathlib import Path
 
+from machine import cpu_model
+
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "capture.json"
 #: Issue 15's targets, seconds, photo -> maps end to end.
 TARGETS_S = {256: 30.0, 1024: 120.0}
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def child(size: int, threads: int) -> dict:

@@ -15,26 +15,15 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import time
 from pathlib import Path
 
 import torch
+from machine import cpu_model
 
 #: Issue 4: 7 relit images from one photo in under 20 s with the tiny preset.
 TARGET_S = 20.0
-
-
-def _cpu_model() -> str:
-    """The CPU's model name (``/proc/cpuinfo``), else what ``platform`` knows."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def main() -> None:
@@ -85,7 +74,7 @@ def main() -> None:
         "threads": args.threads,
         "repeats": args.repeats,
         "samples": args.samples,
-        "cpu": _cpu_model(),
+        "cpu": cpu_model(),
         "load_avg": os.getloadavg(),
         "target_s": TARGET_S,
         "rows": rows,
