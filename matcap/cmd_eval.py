@@ -152,6 +152,13 @@ def _add_capture_parser(what) -> None:
     c.add_argument(
         "--relit-size", type=int, default=None, help="side of the relit views (default: the working size, 64)"
     )
+    c.add_argument(
+        "--relit-robust",
+        type=float,
+        default=None,
+        metavar="TAU",
+        help="robust refinement loss of the relit views at this scale (default: log-L1)",
+    )
     c.add_argument("--estimator", type=Path, default=None, help="estimator folder (default: the shipped one)")
     c.add_argument(
         "--checkpoint",
@@ -178,7 +185,7 @@ def run_capture(args) -> int:
     check_output_folder(args.out, overwrite=args.overwrite, marker=CAPTURE_MARKER)
     check_at_least_one("--samples", args.samples)
     try:
-        capture = CaptureConfig(samples=args.samples, relit_size=args.relit_size)
+        capture = CaptureConfig(samples=args.samples, relit_size=args.relit_size, relit_robust=args.relit_robust)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     if args.refine is not None:

@@ -161,6 +161,31 @@ def test_clipped_pixels_are_lower_bounds():
     )
 
 
+def test_robust_relit_loss_is_log_l1_for_small_residuals_and_caps_outliers():
+    # tau log(1 + r / tau): r where r << tau; an outlier pixel (a relighter's dark disc)
+    # pulls with weight 1 / (1 + r / tau) instead of 1.
+    from matcap.capture.refine import _Target
+
+    gen = torch.Generator().manual_seed(0)
+    y = torch.rand(3, 8, 8, generator=gen) * 0.5 + 0.2
+    mask = torch.ones(8, 8, dtype=torch.bool)
+    close = y * 1.001
+    plain, robust = _Target(y, mask), _Target(y, mask, robust=0.1)
+    assert float(robust.loss(close)) == pytest.approx(float(plain.loss(close)), rel=0.01)
+    far = y.clone()
+    far[:, 0, 0] = y[:, 0, 0] * 20  # log residual ~3: 30 tau
+    x = far.clone().requires_grad_(True)
+    robust.loss(x).backward()
+    grad_outlier = x.grad[:, 0, 0].abs().mean()
+    x2 = far.clone().requires_grad_(True)
+    plain.loss(x2).backward()
+    assert float(grad_outlier) < 0.05 * float(x2.grad[:, 0, 0].abs().mean())  # 1 / (1 + 30) and below
+    with pytest.raises(ValueError, match="robust scale must be positive"):
+        _Target(y, mask, robust=0.0)
+    with pytest.raises(ValueError, match="relit_robust must be a positive number"):
+        CaptureConfig(relit_robust=-1.0)
+
+
 def test_relit_zero_equals_the_estimator_and_refinement_by_hand(tiny_estimator):
     photo = smooth_photo(96, 80, seed=3)
     config = CaptureConfig(relit=0, refine_steps=4, falloff="none")

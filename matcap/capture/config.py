@@ -66,6 +66,9 @@ class CaptureConfig:
             upsampled).
         refine_lr: Adam rate of the refinement.
         photo_weight, relit_weight: weight of the photo's and of each relit view's loss.
+        relit_robust: None (log-L1 for every view), or the scale of a robust loss for the
+            relit views (``matcap.capture.refine._Target``: pixels a generated view gets
+            badly wrong stop pulling the maps).
         falloff: ``"none"`` or ``"inverse-square"`` (package docstring).
         fov: field of view across the photo's long side, degrees (None: EXIF or 45).
         camera: camera (and flash) position ``(x, y, z)``, scene units; overrides ``fov``.
@@ -92,6 +95,7 @@ class CaptureConfig:
     refine_lr: float = REFINE_LR
     photo_weight: float = 1.0
     relit_weight: float = DEFAULT_RELIT_WEIGHT
+    relit_robust: float | None = None
     falloff: str = DEFAULT_FALLOFF
     fov: float | None = None
     camera: tuple[float, float, float] | None = None
@@ -115,6 +119,10 @@ class CaptureConfig:
             value = getattr(self, name)
             need(math.isfinite(value) and value >= 0, f"{name} must be a finite number >= 0, got {value}")
         need(self.photo_weight > 0 or self.relit_weight > 0, "photo_weight and relit_weight cannot both be 0")
+        need(
+            self.relit_robust is None or (math.isfinite(self.relit_robust) and self.relit_robust > 0),
+            f"relit_robust must be a positive number, got {self.relit_robust}",
+        )
         need(self.falloff in FALLOFFS, f"falloff must be one of {', '.join(FALLOFFS)}, got {self.falloff!r}")
         need(self.fov is None or 0 < self.fov < 180, f"field of view must lie in (0, 180) degrees, got {self.fov}")
         if self.camera is not None:

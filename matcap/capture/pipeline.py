@@ -252,7 +252,7 @@ class CapturePipeline:
                     init, image, photo_mask, targets, relit_mask, capture.light_pos, camera,
                     photo_weight=cfg.photo_weight, relit_weight=cfg.relit_weight, steps=cfg.refine_steps,
                     photo_ceiling=photo_ceiling if cfg.clip_aware else None,
-                    relit_ceiling=ceiling if cfg.clip_aware else None,
+                    relit_ceiling=ceiling if cfg.clip_aware else None, relit_robust=cfg.relit_robust,
                     lr=cfg.refine_lr, render_kwargs=scene.render_kwargs, progress=progress,
                 )  # fmt: skip
                 refined, history = result.material, result.history

@@ -13,6 +13,7 @@ from tqdm.auto import tqdm
 import kernels
 from estimator.model import NORMAL_MIN_Z
 from estimator.refine import DEFAULT_TOL, DEFAULT_WINDOW, LOGIT_EPS, RefineResult, converged
+from kernels.loss import LOG_EPS
 from matcap.capture.config import DEFAULT_REFINE_STEPS, DEFAULT_RELIT_WEIGHT, REFINE_LR
 from matcap.capture.scene import area_downsample
 from materials.types import Material
@@ -26,9 +27,25 @@ class _Target:
     ``y``), or None. A pixel of ``y`` at its ceiling only says "at least this bright" (the
     flash highlight of an 8-bit photo, a relighter's output capped at 1), so there the
     render is compared as ``min(x, ceiling)``: a brighter render costs nothing.
+
+    ``robust``: None, or the scale ``tau`` of a robust version of the same loss,
+    ``tau * log(1 + r / tau)`` per element with ``r`` its log-L1 residual: equal to ``r``
+    where ``r << tau`` and growing only logarithmically beyond, so pixels a view gets
+    badly wrong (a relighter's dark disc where the flash was, a misplaced highlight)
+    stop pulling the maps once the fit disagrees with them (a Cauchy / Lorentzian
+    M-estimator on the L1 residual).
     """
 
-    def __init__(self, y: torch.Tensor, mask: torch.Tensor, ceiling: torch.Tensor | float | None = None):
+    def __init__(
+        self,
+        y: torch.Tensor,
+        mask: torch.Tensor,
+        ceiling: torch.Tensor | float | None = None,
+        robust: float | None = None,
+    ):
+        if robust is not None and not robust > 0:
+            raise ValueError(f"robust scale must be positive, got {robust}")
+        self.robust = robust
         self.mask = None if bool(mask.all()) else mask.to(y.dtype)
         self.scale = mask.numel() / int(mask.sum())  # mean over the masked pixels only
         self.y = y if self.mask is None else y * self.mask
@@ -44,7 +61,12 @@ class _Target:
             x = torch.where(self.clipped, torch.minimum(x, self.ceiling), x)
         if self.mask is not None:
             x = x * self.mask
-        return kernels.log_l1_loss(x, self.y) * self.scale
+        if self.robust is None:
+            return kernels.log_l1_loss(x, self.y) * self.scale
+        # torch, not the Warp loss: the robust weight needs the per-element residual (the
+        # relit views are small: 64-256 px).
+        r = (torch.log(x + LOG_EPS) - torch.log(self.y + LOG_EPS)).abs()
+        return (self.robust * torch.log1p(r / self.robust)).mean() * self.scale
 
 
 def _masked_log_l1(
@@ -125,6 +147,7 @@ def refine_full_resolution(
     relit_weight: float = DEFAULT_RELIT_WEIGHT,
     photo_ceiling: float | None = None,
     relit_ceiling: torch.Tensor | float | None = None,
+    relit_robust: float | None = None,
     steps: int = DEFAULT_REFINE_STEPS,
     lr: float = REFINE_LR,
     tol: float = DEFAULT_TOL,
@@ -152,6 +175,8 @@ def refine_full_resolution(
         photo_ceiling, relit_ceiling: where the photo / the relit views were clipped
             (``_masked_log_l1``): None (not clipped), a number, or for the relit views a
             tensor broadcasting to ``[K, 3, s, s]``.
+        relit_robust: None (log-L1), or the scale of the robust loss of the relit views
+            (``_Target``): generated views may be wrong in places, the photo is not.
         render_kwargs: ``kernels.render`` keywords (preset, falloff, intensity).
 
     Returns:
@@ -183,7 +208,7 @@ def refine_full_resolution(
             (
                 chunk,
                 _Target(photo, photo_mask, photo_ceiling) if chunk[0] == 0 else None,
-                _Target(relit[rel], relit_mask, ceiling) if rel else None,
+                _Target(relit[rel], relit_mask, ceiling, robust=relit_robust) if rel else None,
                 len(rel) * relit_weight / total,
             )
         )
