@@ -18,7 +18,7 @@ that the C++ compiler vectorises. Warp's CPU compiler runs clang's cc1 without
 ``-fmath-errno``, so ``sqrtf`` in a loop becomes ``vsqrtps``; ``exp2f`` and ``logf``
 have no vector form there (they would stay one libm call per lane), so for float32 the
 snippets evaluate them by polynomials fitted for this project (``EXP2_COEFFS``,
-``log_lanes``); float64 keeps libm per lane (its kernels serve the gradcheck tests,
+``_log_float32``); float64 keeps libm per lane (its kernels serve the gradcheck tests,
 not speed).
 
 Every helper takes at least one lane-typed argument: Warp tells the builds' functions
@@ -173,15 +173,13 @@ def _scalar_lanes(F, V3F) -> SimpleNamespace:
     def select_ge(x: L, y: L, a: L, b: L):
         return wp.where(x >= y, a, b)
 
-    return SimpleNamespace(
-        F=F, L=L, V=V, V3F=V3F, lanes=1, iota=F(0.0), **_helpers(locals())
-    )
+    return SimpleNamespace(F=F, L=L, V=V, V3F=V3F, lanes=1, iota=F(0.0), **_helpers(locals()))
 
 
 def _vector_lanes(F, V3F, lanes: int) -> SimpleNamespace:
     L = wp.types.vector(lanes, F)
     V = wp.types.matrix((3, lanes), F)
-    f32 = F == wp.float32
+    f32 = F is wp.float32
 
     @wp.func
     def mul(a: L, b: L):
@@ -243,8 +241,22 @@ def _vector_lanes(F, V3F, lanes: int) -> SimpleNamespace:
     )
 
 
-_HELPERS = ("mul", "div", "scale", "shrink", "dot", "cross", "vec3", "from_point", "tint", "sqrt", "exp2", "log")
-_HELPERS += ("select_gt", "select_ge")
+_HELPERS = (
+    "mul",
+    "div",
+    "scale",
+    "shrink",
+    "dot",
+    "cross",
+    "vec3",
+    "from_point",
+    "tint",
+    "sqrt",
+    "exp2",
+    "log",
+    "select_gt",
+    "select_ge",
+)
 
 
 def _helpers(scope: dict) -> dict:
