@@ -1,12 +1,15 @@
 """Autograd glue: torch ``autograd.Function`` wrappers around the Warp launches.
 
 Both shading kernels (``render`` and the fused rendering loss) share one argument
-prefix (maps, light, camera, scene constants, chunk offsets), one chunked launcher and
-one backward. The backward has two paths: the hand-written map gradients
+prefix (maps, light, camera, scene constants, image width, chunk offsets), one chunked
+launcher and one backward. The backward has two paths: the hand-written map gradients
 (``kernels.brdf_grad``, fast, no atomics) when no position needs a gradient, else
-Warp's generated adjoint, which also yields light and camera gradients. Warp traps handled here (Warp's torch interop notes): the output adjoint
-handed to Warp is always a private copy (Warp consumes it), gradients returned to torch
-are fresh buffers, and CUDA launches run on torch's current stream.
+Warp's generated adjoint, which also yields light and camera gradients. On the CPU the
+forward and map-gradient launches shade 16 pixels per thread (``kernels.lanes``): the
+per-pixel tensors are viewed as lane groups here. Warp traps handled here (Warp's
+torch interop notes): the output adjoint handed to Warp is always a private copy (Warp
+consumes it), gradients returned to torch are fresh buffers, and CUDA launches run on
+torch's current stream.
 """
 
 from __future__ import annotations
@@ -49,8 +52,10 @@ def _shading_chunks(batch: int, height: int, device: torch.device) -> tuple[str,
 
 
 def _lanes(device: torch.device) -> int:
-    """Pixels per thread of the map-only kernels: ``CPU_LANES`` on the CPU (kernels/lanes.py),
-    1 on CUDA, where a thread per pixel already fills the hardware's vector lanes."""
+    """Pixels per thread of the forward and map-gradient launches: ``CPU_LANES`` on the CPU
+    (kernels/lanes.py), 1 on CUDA, where a thread per pixel already fills the hardware's
+    vector lanes. Warp's generated adjoint (position gradients) always runs one pixel per
+    thread: the lane builds have no adjoint."""
     return CPU_LANES if device.type == "cpu" else 1
 
 
@@ -66,12 +71,14 @@ def _to_wp(x):
     return wp_array(x) if isinstance(x, torch.Tensor) else x
 
 
-def _padded(t: torch.Tensor, width: int) -> torch.Tensor:
-    """``t`` with its last dim zero-padded to ``width`` (``t`` itself when it has it)."""
+def _padded(t: torch.Tensor, width: int, copy: bool = True) -> torch.Tensor:
+    """``t`` with its last dim zero-padded to ``width`` (``t`` itself when it has it);
+    ``copy=False``: the padded buffer is all zeros (for an output)."""
     if t.shape[-1] == width:
         return t
     out = t.new_zeros((*t.shape[:-1], width))
-    out[..., : t.shape[-1]] = t
+    if copy:
+        out[..., : t.shape[-1]] = t
     return out
 
 
@@ -116,7 +123,7 @@ def _launch_chunked(kernel, maps, light, camera, scene, tail, outputs, adjoint=N
     head = [*(pixels(t) for t in maps), wp_array(light), wp_array(camera)]
     consts = [V3(*scene.intensity), F(scene.plane_size), int(scene.inverse_square), F(scene.roughness_floor), w]
     tail = [pixels(x) if isinstance(x, torch.Tensor) else x for x in tail]
-    out_buffers = [_padded(t, padded_w) if t.shape[-1] == w else t for t in outputs]
+    out_buffers = [_padded(t, padded_w, copy=False) if t.shape[-1] == w else t for t in outputs]
     outs = [_lane_array(t, lanes) for t in out_buffers]
 
     def launch(index: int, start: int, count: int) -> None:
