@@ -1,12 +1,15 @@
 """Autograd glue: torch ``autograd.Function`` wrappers around the Warp launches.
 
 Both shading kernels (``render`` and the fused rendering loss) share one argument
-prefix (maps, light, camera, scene constants, chunk offsets), one chunked launcher and
-one backward. The backward has two paths: the hand-written map gradients
+prefix (maps, light, camera, scene constants, image width, chunk offsets), one chunked
+launcher and one backward. The backward has two paths: the hand-written map gradients
 (``kernels.brdf_grad``, fast, no atomics) when no position needs a gradient, else
-Warp's generated adjoint, which also yields light and camera gradients. Warp traps handled here (Warp's torch interop notes): the output adjoint
-handed to Warp is always a private copy (Warp consumes it), gradients returned to torch
-are fresh buffers, and CUDA launches run on torch's current stream.
+Warp's generated adjoint, which also yields light and camera gradients. On the CPU the
+forward and map-gradient launches shade 16 pixels per thread (``kernels.lanes``): the
+per-pixel tensors are viewed as lane groups here. Warp traps handled here (Warp's
+torch interop notes): the output adjoint handed to Warp is always a private copy (Warp
+consumes it), gradients returned to torch are fresh buffers, and CUDA launches run on
+torch's current stream.
 """
 
 from __future__ import annotations
@@ -17,9 +20,10 @@ import torch
 import warp as wp
 
 from kernels._grad_kernels import build_grad_kernels
-from kernels._image_kernels import build_image_kernels
+from kernels._image_kernels import build_image_kernels, build_render_log_l1_kernel
 from kernels._render_kernels import build_render_kernels
 from kernels._warp import chunk_bounds, parallel_chunks, preload, warp_device, warp_scalar, wp_array
+from kernels.lanes import CPU_LANES, build_lanes
 
 __all__ = ["Scene", "RenderFunction", "RenderLogL1Function", "RowLossFunction"]
 
@@ -47,16 +51,44 @@ def _shading_chunks(batch: int, height: int, device: torch.device) -> tuple[str,
     return "rows", by_rows
 
 
-def _shading_kernel(name: str, dtype: torch.dtype):
+def _lanes(device: torch.device) -> int:
+    """Pixels per thread of the forward and map-gradient launches: ``CPU_LANES`` on the CPU
+    (kernels/lanes.py), 1 on CUDA, where a thread per pixel already fills the hardware's
+    vector lanes. Warp's generated adjoint (position gradients) always runs one pixel per
+    thread: the lane builds have no adjoint."""
+    return CPU_LANES if device.type == "cpu" else 1
+
+
+def _shading_kernel(name: str, dtype: torch.dtype, lanes: int = 1):
     F = warp_scalar(dtype)
     if name == "render":
-        return F, build_render_kernels(F).V3, build_render_kernels(F).render
-    return F, build_image_kernels(F).V3, build_image_kernels(F).render_log_l1
+        return F, build_render_kernels(F).V3, build_render_kernels(F, lanes).render
+    return F, build_image_kernels(F).V3, build_render_log_l1_kernel(F, lanes)
 
 
 def _to_wp(x):
     """Warp view of a tensor argument; scalars pass through."""
     return wp_array(x) if isinstance(x, torch.Tensor) else x
+
+
+def _padded(t: torch.Tensor, width: int, copy: bool = True) -> torch.Tensor:
+    """``t`` with its last dim zero-padded to ``width`` (``t`` itself when it has it);
+    ``copy=False``: the padded buffer is all zeros (for an output)."""
+    if t.shape[-1] == width:
+        return t
+    out = t.new_zeros((*t.shape[:-1], width))
+    if copy:
+        out[..., : t.shape[-1]] = t
+    return out
+
+
+def _lane_array(t: torch.Tensor, lanes: int):
+    """Warp view of a contiguous per-pixel tensor ``[..., W]`` (W a multiple of ``lanes``)
+    as ``[..., W / lanes]`` lane groups (one contiguous load or store per group)."""
+    if lanes == 1:
+        return wp_array(t)
+    lane_type = build_lanes(warp_scalar(t.dtype), lanes).L
+    return wp_array(t.view(*t.shape[:-1], t.shape[-1] // lanes, lanes), dtype=lane_type)
 
 
 def _maps_only(ctx) -> bool:
@@ -65,28 +97,38 @@ def _maps_only(ctx) -> bool:
     return not (ctx.needs_input_grad[4] or ctx.needs_input_grad[5])
 
 
-def _launch_chunked(kernel, maps, light, camera, scene, tail, outputs, adjoint=None) -> None:
+def _launch_chunked(kernel, maps, light, camera, scene, tail, outputs, adjoint=None, lanes=1) -> None:
     """Launch a per-pixel shading kernel over the batch or row chunks of the thread split.
 
     Every shading kernel (forward, fused loss, their generated adjoints and the
     hand-written map gradients) takes the same argument prefix: the four maps, light,
-    camera, the scene constants and the chunk offsets; ``tail``: its further inputs
-    (torch tensors or scalars); ``outputs``: its output tensors. ``adjoint``: None, or
-    ``index -> (adj_inputs, adj_outputs)`` to launch Warp's generated adjoint instead.
+    camera, the scene constants, the image width and the chunk offsets; ``tail``: its
+    further inputs (torch tensors or scalars); ``outputs``: its output tensors.
+    ``adjoint``: None, or ``index -> (adj_inputs, adj_outputs)`` to launch Warp's
+    generated adjoint instead. ``lanes``: pixels per thread of ``kernel``; every tensor
+    but the positions is per pixel (last dim W) and is viewed as lane groups, zero-padded
+    to whole groups when W is not a multiple of ``lanes`` (padded outputs are copied back).
     """
     b, _, h, w = maps[0].shape
     device = maps[0].device
     F = warp_scalar(maps[0].dtype)
     V3 = build_render_kernels(F).V3
     axis, chunks = _shading_chunks(b, h, device)
-    head = [*(wp_array(t) for t in maps), wp_array(light), wp_array(camera)]
-    consts = [V3(*scene.intensity), F(scene.plane_size), int(scene.inverse_square), F(scene.roughness_floor)]
-    tail = [_to_wp(x) for x in tail]
-    outs = [wp_array(t) for t in outputs]
+    groups = -(-w // lanes)
+    padded_w = groups * lanes
+
+    def pixels(t: torch.Tensor):
+        return _lane_array(_padded(t, padded_w), lanes)
+
+    head = [*(pixels(t) for t in maps), wp_array(light), wp_array(camera)]
+    consts = [V3(*scene.intensity), F(scene.plane_size), int(scene.inverse_square), F(scene.roughness_floor), w]
+    tail = [pixels(x) if isinstance(x, torch.Tensor) else x for x in tail]
+    out_buffers = [_padded(t, padded_w, copy=False) if t.shape[-1] == w else t for t in outputs]
+    outs = [_lane_array(t, lanes) for t in out_buffers]
 
     def launch(index: int, start: int, count: int) -> None:
         offsets = [start, 0] if axis == "batch" else [0, start]
-        dim = (count, h, w) if axis == "batch" else (b, count, w)
+        dim = (count, h, groups) if axis == "batch" else (b, count, groups)
         kwargs = dict(
             dim=dim,
             inputs=[*head, *consts, *offsets, *tail],
@@ -102,6 +144,9 @@ def _launch_chunked(kernel, maps, light, camera, scene, tail, outputs, adjoint=N
 
     preload(kernel, warp_device(device))
     parallel_chunks(chunks, launch)
+    for t, buf in zip(outputs, out_buffers):
+        if buf is not t:
+            t.copy_(buf[..., :w])
 
 
 def _launch_shading(
@@ -114,17 +159,20 @@ def _launch_shading(
     ``_maps_backward``; ``grads``: (four map gradient buffers, per-chunk light buffers,
     per-chunk camera buffers).
     """
-    F, V3, kernel = _shading_kernel(name, maps[0].dtype)
     store = fresnel is not None
     tail = [*extra, int(store)]
-    outputs = [output, fresnel if store else _placeholder(maps[0])]
+    lanes = _lanes(maps[0].device) if grads is None else 1
+    outputs = [output, fresnel if store else _placeholder(maps[0], lanes)]
     if grads is None:
-        _launch_chunked(kernel, maps, light, camera, scene, tail, outputs)
+        kernel = _shading_kernel(name, maps[0].dtype, lanes)[2]
+        _launch_chunked(kernel, maps, light, camera, scene, tail, outputs, lanes=lanes)
         return
+    # Position gradients: Warp's generated adjoint of the one-pixel-per-thread build.
+    F, V3, kernel = _shading_kernel(name, maps[0].dtype)
     adj_maps = [wp_array(t) for t in grads[0]]
-    adj_consts = [V3(F(0.0), F(0.0), F(0.0)), F(0.0), 0, F(0.0)]
+    adj_consts = [V3(F(0.0), F(0.0), F(0.0)), F(0.0), 0, F(0.0), 0]
     adj_tail = [_to_wp(x) for x in extra_adj] + [0]
-    adj_out = [wp_array(adj_output), wp_array(_placeholder(maps[0]))]
+    adj_out = [wp_array(adj_output), wp_array(_placeholder(maps[0], 1))]
 
     def adjoint(index: int):
         adj_pos = [wp_array(grads[1][index]), wp_array(grads[2][index])]
@@ -133,9 +181,9 @@ def _launch_shading(
     _launch_chunked(kernel, maps, light, camera, scene, tail, outputs, adjoint)
 
 
-def _placeholder(like: torch.Tensor) -> torch.Tensor:
-    """A 1x1x1 stand-in for the Fresnel buffer when the kernel does not write it."""
-    return torch.zeros((1, 1, 1), dtype=like.dtype, device=like.device)
+def _placeholder(like: torch.Tensor, lanes: int) -> torch.Tensor:
+    """A one-lane-group stand-in for the Fresnel buffer when the kernel does not write it."""
+    return torch.zeros((1, 1, lanes), dtype=like.dtype, device=like.device)
 
 
 def _fresnel_buffer(ctx, maps, num_lights: int, grad_enabled: bool) -> torch.Tensor | None:
@@ -160,9 +208,10 @@ def _maps_backward(name, maps, light, camera, scene, extra, fresnel, cotangent):
     the forward kernel's trailing inputs; ``fresnel``: the forward's Fresnel weights.
     Returns fresh gradient tensors.
     """
-    kernel = getattr(build_grad_kernels(warp_scalar(maps[0].dtype)), name)
+    lanes = _lanes(maps[0].device)
+    kernel = getattr(build_grad_kernels(warp_scalar(maps[0].dtype), lanes), name)
     grads = [torch.empty_like(t) for t in maps]
-    _launch_chunked(kernel, maps, light, camera, scene, [*extra, fresnel, cotangent.contiguous()], grads)
+    _launch_chunked(kernel, maps, light, camera, scene, [*extra, fresnel, cotangent.contiguous()], grads, lanes=lanes)
     return grads
 
 

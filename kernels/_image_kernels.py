@@ -68,36 +68,55 @@ def build_image_kernels(F) -> SimpleNamespace:
             s += wp.float64(d * d)
         partial[r] = F(s)
 
-    @wp.kernel(module=module)
+    return SimpleNamespace(
+        V3=V3,
+        translate=translate_kernel,
+        log_l1_rows=log_l1_rows_kernel,
+        mse_rows=mse_rows_kernel,
+        render_log_l1=build_render_log_l1_kernel(F, 1),
+    )
+
+
+@cache
+def build_render_log_l1_kernel(F, lanes: int):
+    """The fused rendering log-L1 kernel for scalar type ``F`` and ``lanes`` pixels per
+    thread (``kernels.lanes``; forward-only for ``lanes`` > 1, as the render kernel)."""
+    brdf = build_brdf(F, lanes)
+    ln = brdf.ln
+    V3, L = brdf.V3, brdf.L
+    module = f"dgrsise_image_{wp.types.type_repr(F)}" + (f"_x{lanes}" if lanes > 1 else "")
+
+    @wp.kernel(module=module, enable_backward=lanes == 1)
     def render_log_l1_kernel(
-        diffuse: wp.array4d(dtype=F),
-        normal: wp.array4d(dtype=F),
-        roughness: wp.array4d(dtype=F),
-        specular: wp.array4d(dtype=F),
+        diffuse: wp.array4d(dtype=L),
+        normal: wp.array4d(dtype=L),
+        roughness: wp.array4d(dtype=L),
+        specular: wp.array4d(dtype=L),
         light: wp.array3d(dtype=F),
         camera: wp.array3d(dtype=F),
         intensity: V3,
         plane_size: F,
         inverse_square: int,
         rough_floor: F,
+        width: int,
         b_offset: int,
         row_offset: int,
-        target: wp.array4d(dtype=F),
+        target: wp.array4d(dtype=L),
         eps: F,
         store_fresnel: int,
-        partial: wp.array3d(dtype=F),
-        fresnel: wp.array3d(dtype=F),
+        partial: wp.array3d(dtype=L),
+        fresnel: wp.array3d(dtype=L),
     ):
         # Renders pixel (b, i, j) under the K lights and sums |log(x + eps) - log(y + eps)|
         # over lights and channels without storing the rendering (fused: no [B,K,3,H,W]);
         # fresnel: as in the render kernel.
-        bb, ii, j = wp.tid()
+        bb, ii, jq = wp.tid()
         b = bb + b_offset
         i = ii + row_offset
         num_lights = light.shape[1]
-        p, rho_d, f0, m, rough = brdf.load_pixel(diffuse, normal, roughness, specular, b, i, j, plane_size)
+        p, rho_d, f0, m, rough = brdf.load_pixel(diffuse, normal, roughness, specular, b, i, jq, width, plane_size)
         n = brdf.safe_normalize(m)
-        s = F(0.0)
+        s = L(F(0.0))
         for k in range(num_lights):
             radiance, w = brdf.point_light_radiance(
                 p,
@@ -113,7 +132,7 @@ def build_image_kernels(F) -> SimpleNamespace:
             )
             row = b * num_lights + k
             if store_fresnel != 0:
-                fresnel[row, i, j] = w
+                fresnel[row, i, jq] = w
             # sum_c |log(x_c + eps) - log(y_c + eps)| = log(prod_c max_c / prod_c min_c)
             # of a_c = x_c + eps, t_c = y_c + eps (|log(a / t)| = log(max / min)): one log
             # and one division per light instead of three each (the logs were the
@@ -123,20 +142,14 @@ def build_image_kernels(F) -> SimpleNamespace:
             # sum of three terms. On ties (a_c = t_c) max and min both pick t_c (the
             # second argument), so the generated adjoint passes x_c no gradient there, as
             # the twin's |.| does.
-            num = F(1.0)
-            den = F(1.0)
+            num = L(F(1.0))
+            den = L(F(1.0))
             for c in range(3):
-                a = radiance[c] + eps
-                t = target[row, c, i, j] + eps
-                num = num * wp.max(a, t)
-                den = den * wp.min(a, t)
-            s += wp.log(num / den)
-        partial[b, i, j] = s
+                a = radiance[c] + L(eps)
+                t = target[row, c, i, jq] + L(eps)
+                num = ln.mul(num, wp.max(a, t))
+                den = ln.mul(den, wp.min(a, t))
+            s += ln.log(ln.div(num, den))
+        partial[b, i, jq] = s
 
-    return SimpleNamespace(
-        V3=V3,
-        translate=translate_kernel,
-        log_l1_rows=log_l1_rows_kernel,
-        mse_rows=mse_rows_kernel,
-        render_log_l1=render_log_l1_kernel,
-    )
+    return render_log_l1_kernel
