@@ -96,35 +96,3 @@ def _window(light, camera, top, left, size, tile, plane=4.0):
     cx = ((left + tile / 2) / size - 0.5) * plane
     cy = -((top + tile / 2) / size - 0.5) * plane
     return crop_geometry(light, camera, (cx, cy), plane * tile / size, plane_size=plane)
-
-
-def test_diffusion_relighter_tiles_photos_larger_than_its_resolution(tiny_diffusion_relighter):
-    relighter = tiny_diffusion_relighter  # resolution 16, one step
-    photo, light, camera = _scene(16, k=2)
-    gen = lambda: torch.Generator().manual_seed(0)  # noqa: E731
-    native = relighter.relight(photo[None], light[None], camera[None], generator=gen())
-    direct = relighter.pipeline(photo, light, camera, num_inference_steps=1, generator=gen(), progress=False)
-    torch.testing.assert_close(native[0], direct)  # the native size is one call, untiled
-    big, light, camera = _scene(40, k=2)
-    out = relighter.relight(big[None], light[None], camera[None], generator=gen())
-    assert out.shape == (1, 2, 3, 40, 40) and torch.isfinite(out).all()
-    for bad in (torch.rand(1, 3, 8, 8), torch.rand(1, 3, 32, 40)):
-        with pytest.raises(ValueError, match="at least the model's resolution"):
-            relighter.relight(bad, light[None], camera[None])
-
-
-@pytest.fixture
-def tiny_diffusion_relighter():
-    from relight.diffusion import RelightDiffusion
-    from relight.diffusion.relighter import DiffusionRelighter
-
-    torch.manual_seed(0)
-    model = RelightDiffusion(
-        resolution=16,
-        block_out_channels=(8, 16),
-        cross_attention_dim=16,
-        attention_head_dim=4,
-        num_light_tokens=2,
-        condition_widths=(4, 4, 4, 4, 8, 8),
-    )
-    return DiffusionRelighter(model, steps=1, overlap=4)

@@ -464,3 +464,24 @@ def test_clean_views_are_the_targets_and_the_degraded_ones_the_condition(tiny_mo
     del batch["clean"]
     diffusion_loss(tiny_model, make_train_scheduler(), batch, torch.Generator().manual_seed(0))
     assert torch.equal(seen_linear[0], batch["images"].flatten(0, 1))
+
+
+def test_diffusion_relighter_tiles_photos_larger_than_its_resolution(tiny_model):
+    # The model's size is one call, untiled; a larger square photo is relit in windows
+    # (relight.tiling); anything smaller or not square is refused with the reason.
+    from relight.diffusion.relighter import DiffusionRelighter
+
+    relighter = DiffusionRelighter(tiny_model, steps=1, overlap=4)  # resolution 16
+    gen = lambda: torch.Generator().manual_seed(0)  # noqa: E731
+    photo = torch.rand(3, 16, 16, generator=gen()) * 0.5 + 0.1
+    light = torch.tensor([[1.0, -1.0, 5.0], [-2.0, 0.5, 4.0]])
+    camera = torch.tensor([0.0, 0.0, 4.5])
+    native = relighter.relight(photo[None], light[None], camera[None], generator=gen())
+    direct = relighter.pipeline(photo, light, camera, num_inference_steps=1, generator=gen(), progress=False)
+    torch.testing.assert_close(native[0], direct)
+    big = torch.rand(3, 40, 40, generator=gen()) * 0.5 + 0.1
+    out = relighter.relight(big[None], light[None], camera[None], generator=gen())
+    assert out.shape == (1, 2, 3, 40, 40) and torch.isfinite(out).all()
+    for bad in (torch.rand(1, 3, 8, 8), torch.rand(1, 3, 32, 40)):
+        with pytest.raises(ValueError, match="at least the model's resolution"):
+            relighter.relight(bad, light[None], camera[None])
