@@ -34,7 +34,7 @@ from estimator.losses import MAP_WEIGHT, NORMAL_LOSSES, NORMAL_WEIGHT, RENDER_WE
 from estimator.model import SVBRDFEstimator
 from materials.capture_domain import CaptureDomain
 from materials.dataset import TRAIN_SEEDS, GroupConfig, RenderedGroups
-from materials.domain_groups import DomainGroups, training_texture_folders
+from materials.domain_groups import DATA_DOMAINS, DomainGroups, check_data_options, training_texture_folders
 from materials.io.atomic import atomic_file, atomic_folder
 from materials.relit_pool import RelitMixedGroups
 from materials.types import Material
@@ -56,7 +56,7 @@ __all__ = [
 ]
 
 #: ``TrainConfig.domain``'s values.
-DOMAINS = ("paper", "capture")
+DOMAINS = DATA_DOMAINS
 
 #: The architecture: ``SVBRDFEstimator``'s constructor arguments (its signature is the
 #: only copy of their defaults), with what a new run builds (``TRAINING_DEFAULTS``: the
@@ -178,15 +178,16 @@ class TrainConfig:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.normal_loss not in NORMAL_LOSSES:
             raise ValueError(f"normal_loss must be one of {NORMAL_LOSSES}, got {self.normal_loss!r}")
-        if self.domain not in DOMAINS:
-            raise ValueError(f"domain must be one of {DOMAINS}, got {self.domain!r}")
-        if self.domain == "paper" and self.textures is not None:
-            raise ValueError("textures needs domain='capture' (the paper's data has procedural materials only)")
+        check_data_options(
+            self.domain,
+            self.textures,
+            p_texture=self.p_texture,
+            p_mix=self.p_mix,
+            p_paper=self.p_paper,
+            p_relit=self.p_relit,
+        )
         if self.relit_pool is not None and self.domain != "paper":
             raise ValueError("relit_pool needs domain='paper' (the pool holds paper-domain groups)")
-        for name in ("p_texture", "p_mix", "p_paper", "p_relit"):
-            if not 0 <= getattr(self, name) <= 1:
-                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
         if self.min_views > self.max_views:
             raise ValueError(f"min_views ({self.min_views}) must not exceed max_views ({self.max_views})")
         factor = 2 ** (len(self.model.channel_mults) - 1)

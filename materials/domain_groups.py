@@ -59,6 +59,8 @@ from materials.types import Material
 __all__ = [
     "DomainGroups",
     "training_texture_folders",
+    "check_data_options",
+    "DATA_DOMAINS",
     "load_texture_folder",
     "save_texture_folder",
     "crop_texture",
@@ -165,6 +167,22 @@ def save_texture_folder(folder: str | os.PathLike, material: Material) -> Path:
         codes = (chw.clamp(0, 1) * 255).round().to(torch.uint8).permute(1, 2, 0).numpy()
         Image.fromarray(np.ascontiguousarray(codes)).save(folder / f"{name}.png")
     return folder
+
+
+#: The trainers' ``domain`` values: ``paper`` (``RenderedGroups``) or ``capture`` (``DomainGroups``).
+DATA_DOMAINS = ("paper", "capture")
+
+
+def check_data_options(domain: str, textures: str | None, **probabilities: float) -> None:
+    """The trainers' shared data options (``domain``, ``textures``, ``p_*``), checked
+    once for both: ``ValueError`` naming the option."""
+    if domain not in DATA_DOMAINS:
+        raise ValueError(f"domain must be one of {DATA_DOMAINS}, got {domain!r}")
+    if domain == "paper" and textures is not None:
+        raise ValueError("textures needs domain='capture' (the paper's data has procedural materials only)")
+    for name, p in probabilities.items():
+        if not 0 <= p <= 1:
+            raise ValueError(f"{name} must be in [0, 1], got {p}")
 
 
 def training_texture_folders(root: str | os.PathLike) -> list[Path]:

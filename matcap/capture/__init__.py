@@ -100,7 +100,6 @@ from matcap.capture.refine import _view_chunks as _view_chunks
 from matcap.capture.refine import refine_full_resolution, refine_memory_bytes
 from matcap.capture.relighting import native_resolution, relight_views
 from matcap.capture.scene import CaptureScene, area_downsample, capture_scene, falloff_factor
-from matcap.capture.scene import _plane_grid as _plane_grid
 
 __all__ = [
     "CapturePipeline",

@@ -74,12 +74,6 @@ def area_downsample(x: torch.Tensor, size: int) -> torch.Tensor:
     return x.reshape(*x.shape[:-2], size, f, size, f).mean(dim=(-3, -1))
 
 
-def _plane_grid(size: int, plane_size: float, dtype=torch.float32) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(x, y)`` ``[size, size]`` plane coordinates of the pixel centres (SPEC section 2)."""
-    c = ((torch.arange(size, dtype=torch.float64) + 0.5) / size - 0.5) * plane_size
-    return c[None, :].expand(size, size).to(dtype), (-c)[:, None].expand(size, size).to(dtype)
-
-
 def falloff_factor(light_pos: torch.Tensor, reference_height: float, size: int, plane_size: float) -> torch.Tensor:
     """``h^2 / |p - x|^2`` per pixel of a square image spanning the plane.
 

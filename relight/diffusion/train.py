@@ -34,7 +34,7 @@ from torch.utils.data import DataLoader, Subset
 
 from materials.capture_domain import CaptureDomain
 from materials.dataset import TRAIN_SEEDS, GroupConfig, RenderedGroups
-from materials.domain_groups import DomainGroups, training_texture_folders
+from materials.domain_groups import DATA_DOMAINS, DomainGroups, check_data_options, training_texture_folders
 from relight.diffusion.config import TINY_TRAINING_DEFAULTS
 from relight.diffusion.model import RelightDiffusion, make_train_scheduler
 from relight.diffusion.objective import diffusion_loss
@@ -52,7 +52,7 @@ from training.schedule import SCHEDULES, lr_factor
 __all__ = ["TrainConfig", "DiffusionModelConfig", "main", "parse_args", "learning_rate", "training_data", "DOMAINS"]
 
 #: ``TrainConfig.domain``'s values.
-DOMAINS = ("paper", "capture")
+DOMAINS = DATA_DOMAINS
 
 #: What a new run of the tiny preset builds where ``RelightDiffusion``'s signature keeps the
 #: behaviour of old checkpoints: the three tiny-preset switches of
@@ -158,13 +158,7 @@ class TrainConfig:
             raise ValueError(f"ema_decay must lie in [0, 1), got {self.ema_decay}")
         if not 0 <= self.terminal_fraction <= 1:
             raise ValueError(f"terminal_fraction must lie in [0, 1], got {self.terminal_fraction}")
-        if self.domain not in DOMAINS:
-            raise ValueError(f"domain must be one of {DOMAINS}, got {self.domain!r}")
-        if self.domain == "paper" and self.textures is not None:
-            raise ValueError("textures needs domain='capture' (the paper's data has procedural materials only)")
-        for name in ("p_texture", "p_mix", "p_paper"):
-            if not 0 <= getattr(self, name) <= 1:
-                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
+        check_data_options(self.domain, self.textures, p_texture=self.p_texture, p_mix=self.p_mix, p_paper=self.p_paper)
         for name in ("steps", "groups_per_step", "ckpt_every", "keep_checkpoints"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
