@@ -54,6 +54,7 @@ __all__ = [
     "highlight_mask",
     "specular_score",
     "EvalRow",
+    "rerender_metrics",
 ]
 
 #: 16 held-out lights for the re-rendered metrics (camera at ``EVAL_CAMERA``): an outer
@@ -135,7 +136,7 @@ def highlight_mask(
     return saturated | disc.to(flash.device)[None, None]
 
 
-def _rerender_metrics(pred: Material, true: Material) -> tuple[torch.Tensor, torch.Tensor]:
+def rerender_metrics(pred: Material, true: Material) -> tuple[torch.Tensor, torch.Tensor]:
     """Per-material PSNR and SSIM ``[B]`` (float64) of tone-mapped renders under
     ``HELDOUT_LIGHTS``: PSNR of the MSE pooled over the lights, SSIM averaged over them."""
     light_pos, camera_pos = (t.to(pred.device) for t in heldout_lights())
@@ -223,7 +224,7 @@ def evaluate(
             seconds[(n, refined)] += time.perf_counter() - tick
             for name, p, t in zip(MAP_NAMES, pred.map_tensors(), true.map_tensors()):
                 per[(n, refined)][name].append(((p - t) ** 2).mean((1, 2, 3)))
-            psnr, ssim = _rerender_metrics(pred, true)
+            psnr, ssim = rerender_metrics(pred, true)
             per[(n, refined)]["psnr"].append(psnr)
             per[(n, refined)]["ssim"].append(ssim)
             err = ((pred.diffuse - true.diffuse) ** 2).mean(1, keepdim=True)

@@ -34,10 +34,8 @@ from pathlib import Path
 
 import torch
 
-import kernels
-from estimator.evaluate import EVAL_CROP_SEED, MAP_NAMES, evaluate, heldout_lights
+from estimator.evaluate import EVAL_CROP_SEED, MAP_NAMES, evaluate, rerender_metrics
 from estimator.model import SVBRDFEstimator
-from materials import metrics
 from materials.capture_domain import CaptureDomain
 from materials.dataset import EVAL_SEEDS, GroupConfig
 from materials.domain_groups import REAL_DEV_VALIDATION, DomainGroups
@@ -60,15 +58,6 @@ def load(folder: str | Path) -> SVBRDFEstimator:
     folder = Path(folder)
     inner = folder / "model"
     return SVBRDFEstimator.from_pretrained(inner if (inner / "config.json").is_file() else folder).eval()
-
-
-def rerender_psnr(pred: Material, true: Material) -> torch.Tensor:
-    """``[B]`` float64 PSNR of tone-mapped renders under ``HELDOUT_LIGHTS``, the MSE pooled
-    over the 16 lights and all pixels of each material."""
-    light_pos, camera_pos = heldout_lights()
-    a = kernels.tonemap(kernels.render(*pred.map_tensors(), light_pos, camera_pos))
-    b = kernels.tonemap(kernels.render(*true.map_tensors(), light_pos, camera_pos))
-    return metrics.psnr_from_mse(metrics.mse(a, b).view(a.shape[:2]).mean(1))
 
 
 def domain_sets(size: int, textures: Path | None, crops: int) -> dict[str, DomainGroups]:
@@ -101,7 +90,7 @@ def score(model: SVBRDFEstimator, data: DomainGroups, batch_size: int) -> dict[i
                 pred = model(batch["images"][:, :n], batch["light_pos"][:, :n], batch["camera_pos"][:, :n])
                 for name, p, t in zip(MAP_NAMES, pred.map_tensors(), true.map_tensors()):
                     per[n][name].append(((p - t) ** 2).mean((1, 2, 3)).double())
-                per[n]["psnr"].append(rerender_psnr(pred, true))
+                per[n]["psnr"].append(rerender_metrics(pred, true)[0])
     return {n: {k: torch.cat(v) for k, v in per[n].items()} for n in VIEW_COUNTS}
 
 

@@ -22,7 +22,7 @@ Rows: the shipped estimator on view 0 alone and on all 8 views, fed
   ``EVAL_LIGHTS``, no falloff, 8-bit.
 
 No refinement. Scores: re-render PSNR of the predicted vs the true maps under the 16
-``HELDOUT_LIGHTS`` (``scripts/eval_domain.rerender_psnr``) and the map MSEs. Writes
+``HELDOUT_LIGHTS`` (``estimator.evaluate.rerender_metrics``) and the map MSEs. Writes
 ``materialgan_units.md`` and ``.json``.
 """
 
@@ -38,7 +38,7 @@ from pathlib import Path
 import torch
 
 import kernels
-from estimator.evaluate import EVAL_CROP_SEED, MAP_NAMES
+from estimator.evaluate import EVAL_CROP_SEED, MAP_NAMES, rerender_metrics
 from kernels.tonemap import inverse_tonemap, tonemap
 from matcap.estimate import load_estimator
 from materials.capture_domain import CaptureDomain, sample_geometry
@@ -98,16 +98,6 @@ def paper_views(material: Material) -> tuple[torch.Tensor, torch.Tensor, torch.T
     return inverse_tonemap((tonemap(images) * 255).round() / 255), light, camera.expand(len(light), 3).clone()
 
 
-def rerender_psnr(pred: Material, true: Material) -> float:
-    from estimator.evaluate import heldout_lights
-    from materials import metrics
-
-    light_pos, camera_pos = heldout_lights()
-    a = kernels.tonemap(kernels.render(*pred.map_tensors(), light_pos, camera_pos))
-    b = kernels.tonemap(kernels.render(*true.map_tensors(), light_pos, camera_pos))
-    return float(metrics.psnr_from_mse(metrics.mse(a, b).view(a.shape[:2]).mean(1))[0])
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, required=True)
@@ -139,7 +129,9 @@ def main() -> None:
                 for n in (1, VIEWS):
                     with torch.no_grad():
                         pred = model(images[None, :n], light[None, :n], camera[None, :n])
-                    row = {"psnr": rerender_psnr(pred, Material(*(t[None] for t in true.map_tensors())))}
+                    row = {
+                        "psnr": float(rerender_metrics(pred, Material(*(t[None] for t in true.map_tensors())))[0][0])
+                    }
                     for name, p, t in zip(MAP_NAMES, pred.map_tensors(), true.map_tensors()):
                         row[name] = float(((p[0] - t) ** 2).mean())
                     per.setdefault(f"{feed}|{n}", []).append(row)
