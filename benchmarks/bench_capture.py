@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import resource
 import subprocess
 import sys
@@ -29,7 +28,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from machine import cpu_model
+from machine import machine_meta
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "capture.json"
 #: Issue 15's targets, seconds, photo -> maps end to end.
@@ -86,14 +85,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     sizes = [int(s) for s in args.sizes.split(",")]
-    meta = {
-        "cpu": cpu_model(),
-        "cores": os.cpu_count(),
-        "threads": args.threads,
-        "python": platform.python_version(),
-        "date": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
-        "loadavg_before": os.getloadavg(),
-    }
+    meta = machine_meta(args.threads)
     runs = []
     for size in sizes:
         cmd = [sys.executable, __file__, "--child", str(size), "--threads", str(args.threads)]

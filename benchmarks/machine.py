@@ -17,3 +17,20 @@ def cpu_model() -> str:
     except OSError:
         pass
     return platform.processor() or platform.machine() or "unknown"
+
+
+def machine_meta(threads: int) -> dict:
+    """The record every subprocess-per-case benchmark starts its JSON with: CPU, cores,
+    torch threads, Python, UTC date and the load average before the runs (the machine
+    may be shared; the caller adds ``loadavg_after``)."""
+    import os
+    import time
+
+    return {
+        "cpu": cpu_model(),
+        "cores": os.cpu_count(),
+        "threads": threads,
+        "python": platform.python_version(),
+        "date": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
+        "loadavg_before": os.getloadavg(),
+    }

@@ -63,6 +63,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="side of the relit views, a multiple of 64 (default 64, the networks' size); larger "
         "ones are relit in 64 px tiles and refined against at that size",
     )
+    p.add_argument(
+        "--estimate-size",
+        type=int,
+        default=None,
+        metavar="PX",
+        help="side the estimator sees the photo and relit views at, a multiple of 64 (default 256, "
+        "or the photo's side when smaller); the maps are then refined at the photo's resolution",
+    )
     p.add_argument("--max-side", type=int, default=None, help="downscale photos longer than this (at most 2048)")
     p.add_argument("--seed", type=int, default=0, help="seed of the relighter's sampling (default 0)")
     p.add_argument(
@@ -114,6 +122,12 @@ def _config(args):
             lambda v: WORKING_SIZE <= v <= MAX_SIDE and v % WORKING_SIZE == 0,
             f"must be a multiple of {WORKING_SIZE} up to {MAX_SIDE}",
         ),
+        (
+            "--estimate-size",
+            args.estimate_size,
+            lambda v: WORKING_SIZE <= v <= MAX_SIDE and v % WORKING_SIZE == 0,
+            f"must be a multiple of {WORKING_SIZE} up to {MAX_SIDE}",
+        ),
     ]
     for flag, value, ok, rule in checks:
         if value is not None and not ok(value):
@@ -129,6 +143,7 @@ def _config(args):
         "camera": parse_position(args.camera, "--camera") if args.camera else None,
         "max_side": args.max_side,
         "relit_size": args.relit_size,
+        "estimate_size": args.estimate_size,
         "seed": args.seed,
     }
     return CaptureConfig(**{k: v for k, v in settings.items() if v is not None})

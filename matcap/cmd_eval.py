@@ -153,6 +153,13 @@ def _add_capture_parser(what) -> None:
         "--relit-size", type=int, default=None, help="side of the relit views (default: the working size, 64)"
     )
     c.add_argument(
+        "--estimate-size",
+        type=int,
+        default=None,
+        metavar="PX",
+        help="side the estimator sees the views at (default: the pipeline's, 256)",
+    )
+    c.add_argument(
         "--relit-robust",
         type=float,
         default=None,
@@ -185,7 +192,10 @@ def run_capture(args) -> int:
     check_output_folder(args.out, overwrite=args.overwrite, marker=CAPTURE_MARKER)
     check_at_least_one("--samples", args.samples)
     try:
-        capture = CaptureConfig(samples=args.samples, relit_size=args.relit_size, relit_robust=args.relit_robust)
+        sizes = {"estimate_size": args.estimate_size} if args.estimate_size is not None else {}
+        capture = CaptureConfig(
+            samples=args.samples, relit_size=args.relit_size, relit_robust=args.relit_robust, **sizes
+        )
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     if args.refine is not None:

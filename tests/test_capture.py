@@ -76,11 +76,12 @@ def test_pipeline_end_to_end_on_a_non_square_photo(tiny_estimator, tmp_path):
     photo = smooth_photo(100, 70)
     out = pipeline(tiny_estimator)(photo)
     k = len(EVAL_LIGHTS)
-    # Maps, re-renders and their channels on the photo's grid; the networks at 64 px.
+    # Maps, re-renders and their channels on the photo's grid; the relighter at 64 px, the
+    # estimator on the whole padded 128 px square (below the default estimate size).
     assert out.material.shape == (100, 70) and out.material.diffuse.shape == (3, 100, 70)
     assert out.renders.shape == (1 + k, 3, 100, 70) and bool(torch.isfinite(out.renders).all())
-    assert out.relit.shape == (k, 3, WORKING_SIZE, WORKING_SIZE) and out.estimate.shape == (64, 64)
-    assert out.capture.num_views == 1 + k and out.capture.shape == (64, 64)
+    assert out.relit.shape == (k, 3, WORKING_SIZE, WORKING_SIZE) and out.estimate.shape == (128, 128)
+    assert out.capture.num_views == 1 + k and out.capture.shape == (128, 128)
     assert torch.equal(out.capture.light_pos[0], out.capture.camera_pos[0])  # view 0: the flash
     assert out.frame.size == (128, 128) and out.frame.photo_size == (100, 70)
     assert out.confidence is None  # one sample
@@ -191,13 +192,15 @@ def test_relit_zero_equals_the_estimator_and_refinement_by_hand(tiny_estimator):
     config = CaptureConfig(relit=0, refine_steps=4, falloff="none")
     out = CapturePipeline(None, tiny_estimator, config=config)(photo)
     # By hand: pad to a multiple of 64, the camera at 45 degrees over the photo's centre,
-    # the estimator on the 64 px photo, refinement against the photo, back to its grid.
+    # the estimator on the whole 128 px padded photo (under the estimate size), refinement
+    # against the photo, back to its grid.
     image, frame = prepare_photo(photo, multiple=64)
+    assert config.estimate_side(frame.size[0]) == 128
     h = (frame.photo_long_side / 2) / math.tan(math.radians(45.0) / 2)
     x, y = frame.pixel_to_plane(torch.tensor(95 / 2), torch.tensor(79 / 2))
     camera = torch.tensor([float(x), float(y), h])
     with torch.no_grad():
-        estimate = tiny_estimator(area_downsample(image, 64)[None, None], camera[None, None], camera[None, None])
+        estimate = tiny_estimator(image[None, None], camera[None, None], camera[None, None])
     init = estimate.__class__(
         *(torch.nn.functional.interpolate(t, size=frame.size, mode="bilinear") for t in estimate.map_tensors())
     )
@@ -239,15 +242,22 @@ def test_samples_give_a_confidence_map_with_the_shipped_diffusion_relighter(tiny
 
 def test_relit_views_at_a_larger_size_are_refined_against_there(tiny_estimator):
     # relit_size 128 on a 128 px photo: the relighter relights the photo at 128, the
-    # estimator sees the views at 64 (area-downsampled), the refinement at 128.
+    # estimator (estimate size 64) sees the views area-downsampled, the refinement at 128.
     photo = smooth_photo(128, 128)
-    out = pipeline(tiny_estimator, relit=2, relit_size=128, falloff="none")(photo)
+    out = pipeline(tiny_estimator, relit=2, relit_size=128, estimate_size=64, falloff="none")(photo)
     assert out.relit.shape == (2, 3, 128, 128) and out.capture.shape == (64, 64)
     lamb = get_relighter("lambertian")
     camera = out.scene.camera_pos
     direct = lamb.relight(photo[None], out.scene.relit_light_pos[None], camera[None])[0]
     torch.testing.assert_close(out.relit, direct)  # relit from the full-size photo
     torch.testing.assert_close(out.capture.images[1:], area_downsample(direct, 64))
+    # Relit views smaller than the estimate size are upsampled bilinearly to it.
+    up = pipeline(tiny_estimator, relit=2, estimate_size=128, falloff="none")(photo)
+    assert up.relit.shape == (2, 3, 64, 64) and up.capture.shape == (128, 128)
+    torch.testing.assert_close(up.capture.images[0], photo)  # the photo itself, no falloff
+    torch.testing.assert_close(
+        up.capture.images[1:], torch.nn.functional.interpolate(up.relit, size=(128, 128), mode="bilinear")
+    )
     # a size that does not divide the padded side falls back to one that does
     assert CaptureConfig(relit_size=256).relit_side(320) == 64
     with pytest.raises(ValueError, match="multiple of the working size"):
@@ -319,7 +329,7 @@ def capture_argv(photo, out, estimator_folder, *extra):
 def test_cli_capture_then_estimate_round_trip(tmp_path, estimator_folder, capsys):
     out = tmp_path / "cap"
     args = capture_argv("builtin:tiles", out, estimator_folder, "--relighter", "lambertian", "--relit", "3")
-    assert main([*args, "--falloff", "none"]) == 0
+    assert main([*args, "--falloff", "none", "--estimate-size", "64"]) == 0
     assert "capture" in capsys.readouterr().err  # the progress bar
     prov = json.loads((out / PROVENANCE_JSON).read_text())
     capture = read_capture(out / "capture")

@@ -40,6 +40,11 @@ MAX_SIDE = 2048
 #: set falls from 0.130 (alone) to 0.057. Steps: 50 / 100 / 200 gave 20.24 / 20.39 / 20.24
 #: dB on the glossy set; 100 keeps 1024 px under the 120 s target (96 s measured).
 DEFAULT_REFINE_STEPS = 100
+#: The estimator's input side: the whole image at 256 px re-renders 1.6-1.9 dB better
+#: than at 64 px upsampled (8 held-out materials at 256 px, 1 and 8 views, no refinement;
+#: ``results/estimator_resolution``), in 1 s for 8 views; 512 px adds nothing (-0.2 dB)
+#: at 8x the time and ~2 GB.
+DEFAULT_ESTIMATE_SIZE = 256
 DEFAULT_RELIT_WEIGHT = 0.1
 #: Adam rate of the per-pixel logits and normal slopes (``estimator.refine.refine_maps``'s).
 REFINE_LR = 1e-2
@@ -79,6 +84,10 @@ class CaptureConfig:
             views there; the estimator still sees them area-downsampled to the working
             size. The size used is the largest multiple of the working size that is at
             most ``relit_size`` and divides the padded photo's side.
+        estimate_size: side the estimator sees the photo and the relit views at, pixels
+            (the whole image at once: it is convolutional): None keeps the working size;
+            larger (a multiple of it) is chosen as ``relit_size`` is. Relit views of
+            another size are area-averaged or bilinearly upsampled to it.
         max_side: downscale a photo whose long side exceeds it (None: refuse photos
             above ``MAX_SIDE``); at most ``MAX_SIDE``.
         seed: seed of the relighter's sampling.
@@ -101,6 +110,7 @@ class CaptureConfig:
     camera: tuple[float, float, float] | None = None
     working_size: int = WORKING_SIZE
     relit_size: int | None = None
+    estimate_size: int | None = DEFAULT_ESTIMATE_SIZE
     max_side: int | None = None
     seed: int = 0
     clip_aware: bool = True
@@ -136,6 +146,11 @@ class CaptureConfig:
                 self.relit_size >= self.working_size and self.relit_size % self.working_size == 0,
                 f"relit size must be a multiple of the working size {self.working_size}, got {self.relit_size}",
             )
+        if self.estimate_size is not None:
+            need(
+                self.estimate_size >= self.working_size and self.estimate_size % self.working_size == 0,
+                f"estimate size must be a multiple of the working size {self.working_size}, got {self.estimate_size}",
+            )
         if self.max_side is not None:
             need(
                 self.working_size <= self.max_side <= MAX_SIDE,
@@ -153,6 +168,18 @@ class CaptureConfig:
         >>> CaptureConfig(relit_size=256).relit_side(512), CaptureConfig(relit_size=256).relit_side(320)
         (256, 64)
         """
+        return self._side(self.relit_size, side)
+
+    def estimate_side(self, side: int) -> int:
+        """The estimator's input side for a padded photo of ``side`` pixels: as
+        ``relit_side``, for ``estimate_size``.
+
+        >>> CaptureConfig().estimate_side(1024), CaptureConfig().estimate_side(192), CaptureConfig().estimate_side(320)
+        (256, 192, 64)
+        """
+        return self._side(self.estimate_size, side)
+
+    def _side(self, size: int | None, side: int) -> int:
         ws = self.working_size
-        largest = min(self.relit_size or ws, side)
+        largest = min(size or ws, side)
         return next(s for s in range(largest - largest % ws, ws - 1, -ws) if side % s == 0)

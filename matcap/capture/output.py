@@ -30,13 +30,13 @@ class CaptureOutput:
 
     Attributes:
         material: ``Material`` ``[C, H, W]`` on the photo's pixel grid (refined).
-        estimate: the estimator's maps ``[C, w, w]`` at the working resolution.
-        relit: ``[K, 3, w, w]`` relit views, the relighter's output (no falloff).
+        estimate: the estimator's maps ``[C, e, e]`` at the estimate size (``CaptureConfig.estimate_side``).
+        relit: ``[K, 3, r, r]`` relit views at the relit size, the relighter's output (no falloff).
         confidence: ``[1, H, W]`` std across relighting samples on the photo's grid
             (high = uncertain), or None (fewer than 2 samples, or K = 0).
         renders: ``[1 + 7, 3, H, W]`` the refined maps re-rendered under the flash and the
             ``RENDER_LIGHTS``, on the photo's grid (in ``scene.render_kwargs``).
-        capture: the step-4 ``Capture`` (working resolution, no-falloff convention): what
+        capture: the step-4 ``Capture`` (estimate size, no-falloff convention): what
             the estimator saw.
         photo: the input ``Photo``; frame: its ``Frame``; scene: its ``CaptureScene``.
         preview: ``[3, h, w]`` display values: photo and relit views, maps, re-renders.

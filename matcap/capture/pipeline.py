@@ -47,6 +47,16 @@ class _Stages:
         self.bar.close()
 
 
+def _resample(images: torch.Tensor, side: int) -> torch.Tensor:
+    """``[N, 3, S, S]`` linear images to ``side``: area-averaged down (an integer
+    factor), bilinear up (relit views smaller than the estimate size)."""
+    if images.shape[-1] == side:
+        return images
+    if images.shape[-1] > side:
+        return area_downsample(images, side)
+    return F.interpolate(images, size=(side, side), mode="bilinear", align_corners=False)
+
+
 def _upsample(material: Material, side: int) -> Material:
     """Bilinear upsampling of batched maps to ``side x side``; normals renormalised."""
     if material.shape == (side, side):
@@ -190,8 +200,9 @@ class CapturePipeline:
                 model_image = image / falloff_factor(camera[None], height, side, frame.plane_size)[0]
             else:
                 model_image = image
-            working = area_downsample(model_image, ws)
-            relit_input = working if rs == ws else area_downsample(model_image, rs)
+            es = cfg.estimate_side(side)
+            estimate_input = area_downsample(model_image, es)
+            relit_input = estimate_input if rs == es else area_downsample(model_image, rs)
 
         # 3. Relight the photo at the relit size to the K lights (mean and std over samples).
         with stage("3 relight"):
@@ -210,7 +221,7 @@ class CapturePipeline:
         # 4. One capture: the photo as view 0, the relit views after it.
         with stage("4 capture"):
             capture = Capture(
-                images=torch.cat([working[None], relit if rs == ws else area_downsample(relit, ws)]),
+                images=torch.cat([estimate_input[None], _resample(relit, es)]),
                 light_pos=torch.cat([camera[None], scene.relit_light_pos]),
                 camera_pos=camera.expand(1 + k, 3).clone(),
                 preset="dgrsise",
@@ -218,7 +229,8 @@ class CapturePipeline:
                 meta={
                     "made_by": "relight capture",
                     "photo": photo.path,
-                    "views": "0: the photo, 1..K: relit views, all area-downsampled to the working size",
+                    "views": "0: the photo, 1..K: relit views, all resampled to the estimate size "
+                    "(area-averaged down, bilinear up)",
                     "falloff": "photo divided by the flash's 1/d^2 factor (no-falloff convention)"
                     if cfg.falloff == "inverse-square"
                     else "none assumed",
@@ -226,7 +238,8 @@ class CapturePipeline:
                 },
             )
 
-        # 5. The estimator on the 1 + K views at the working resolution.
+        # 5. The estimator on the 1 + K views at the estimate size (whole images: it is
+        #    convolutional, and windows are worse, see estimator.tiling).
         with stage("5 estimate"):
             scale = self.estimator.config.plane_size / frame.plane_size
             with torch.no_grad():

@@ -21,6 +21,10 @@ CLASSES = {"diffusion": RelightDiffusion, "bieron": BieronRelighter, "estimator"
 #: Outputs of the shipped networks recorded with the v1 code and layout, before the
 #: conversion (scripts/record_weights_v1_outputs.py at commit 5165520).
 RECORDED = Path(__file__).resolve().parents[1] / "data" / "weights_v1_outputs.safetensors"
+#: Networks retrained since that recording (weights/estimator: stage 6, 2026-12-03): their
+#: recorded outputs are those of weights no longer shipped, so only the others are held to
+#: them; every shipped network is held to tests/data/shipped_reference.safetensors.
+RETRAINED_SINCE_V1 = ("estimator",)
 
 #: float64 against the float64 outputs recorded before the conversion. The same weights
 #: and operations in double precision differ between CPUs only in rounding order: the
@@ -94,7 +98,8 @@ def test_check_loading_info_names_the_keys():
 
 
 def _outputs(rec: dict[str, torch.Tensor], dtype: torch.dtype) -> dict[str, torch.Tensor]:
-    """The recorded quantities, computed as ``record_weights_v1_outputs.py`` did."""
+    """The recorded quantities of the networks not in ``RETRAINED_SINCE_V1``, computed as
+    ``record_weights_v1_outputs.py`` did."""
     x = {k: (v.to(dtype) if v.is_floating_point() else v) for k, v in rec.items()}
     out = {}
     with torch.no_grad():
@@ -105,9 +110,10 @@ def _outputs(rec: dict[str, torch.Tensor], dtype: torch.dtype) -> dict[str, torc
         out["diffusion.v"] = diffusion.denoise(x["diffusion.x_t"], x["diffusion.t"], *cond)
         bieron = BieronRelighter.from_pretrained(weights_dir("bieron")).to(dtype)
         out["bieron.out"] = bieron(x["bieron.photo"], x["bieron.lights"], x["bieron.camera"])
-        estimator = SVBRDFEstimator.from_pretrained(weights_dir("estimator")).to(dtype)
-        maps = estimator(x["estimator.images"], x["estimator.light"], x["estimator.camera"])
-        out |= {f"estimator.{k}": v for k, v in maps.maps().items()}
+        if "estimator" not in RETRAINED_SINCE_V1:
+            estimator = SVBRDFEstimator.from_pretrained(weights_dir("estimator")).to(dtype)
+            maps = estimator(x["estimator.images"], x["estimator.light"], x["estimator.camera"])
+            out |= {f"estimator.{k}": v for k, v in maps.maps().items()}
     return out
 
 
@@ -119,7 +125,7 @@ def recorded() -> dict[str, torch.Tensor]:
 @pytest.mark.parametrize(("dtype", "atol"), [(torch.float64, FLOAT64_ATOL), (torch.float32, FLOAT32_ATOL)])
 def test_outputs_are_those_recorded_before_the_conversion(recorded, dtype, atol):
     got = _outputs(recorded, dtype)
-    assert len(got) == 6
+    assert {k.split(".")[0] for k in got} == set(NAMES) - set(RETRAINED_SINCE_V1)
     for key, value in got.items():
         assert value.dtype == dtype
         torch.testing.assert_close(value.double(), recorded[f"{key}.float64"], atol=atol, rtol=0, msg=key)
