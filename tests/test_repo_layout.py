@@ -250,3 +250,24 @@ def test_shrink_png_rounds_and_drops_opaque_alpha():
     translucent = values.copy()
     translucent[0, 0, 3] = 10
     assert shrink(Image.fromarray(translucent)).mode == "RGBA"
+
+
+def test_no_installed_distribution_shadows_the_kernels_package():
+    """Our top-level ``kernels`` must be the only one: Hugging Face's ``kernels``
+    distribution (a dependency of transformers >= 5.25) installs a package of the same
+    name, and transformers then imports ours in its place and fails at import time (the
+    CI failure of 2026-12-03). pyproject pins transformers below 5.25 for this reason."""
+    import importlib.metadata
+
+    import kernels
+
+    try:
+        clash = importlib.metadata.distribution("kernels")
+    except importlib.metadata.PackageNotFoundError:
+        clash = None
+    assert clash is None, (
+        f"the '{clash.metadata['Name']}' {clash.version} distribution is installed and "
+        "ships a top-level 'kernels' package that collides with this project's; "
+        "uninstall it and keep transformers < 5.25"
+    )
+    assert Path(kernels.__file__).resolve().parent == REPO / "kernels"
