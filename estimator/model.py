@@ -29,6 +29,13 @@ Data flow for a batch of B materials seen in V views (any V >= 1), shapes symbol
    read it (``DESIGN.md``, "Shading branch").
 
 Output: a batched ``materials.types.Material`` (maps ``[B, C, H, W]``, linear, float32).
+
+Memory layout: activations are kept channels-last (NHWC strides, same shapes). On the CPU
+oneDNN runs these narrow convs (12-48 channels) 2-4x faster in NHWC, and the view mean /
+max are running sums over views (contiguous adds) rather than a reduction over a strided
+dimension; whole 1024 px, 8 views: 31 s -> 21 s (``estimator/DESIGN.md``, "Resolution").
+Without autograd (inference) SiLU runs in place, which saves one full-resolution
+allocation per block.
 """
 
 from __future__ import annotations
@@ -70,6 +77,29 @@ def _groups(channels: int, wanted: int) -> int:
     return math.gcd(channels, wanted)
 
 
+def _silu(x: torch.Tensor) -> torch.Tensor:
+    """SiLU, in place when no graph is recorded (its backward needs the input)."""
+    return F.silu(x, inplace=not torch.is_grad_enabled())
+
+
+def _view_mean_max(x: torch.Tensor, views: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Mean and max over views: ``[B * V, C, h, w]`` -> two ``[B, C, h, w]``, in ``x``'s
+    memory layout. A running sum and maximum over the V slices: each step reads two
+    contiguous tensors, where ``mean(1)`` of the ``[B, V, ...]`` view of a channels-last
+    tensor walks a strided dimension (5-25x slower on the CPU)."""
+    xv = x.unflatten(0, (-1, views))
+    total, top = xv[:, 0], xv[:, 0]
+    for i in range(1, views):
+        total = total + xv[:, i]
+        top = torch.maximum(top, xv[:, i])
+    return total / views, top
+
+
+def _repeat_views(shared: torch.Tensor, views: int) -> torch.Tensor:
+    """``[B, C, h, w]`` -> ``[B * V, C, h, w]``, each material's row repeated for its views."""
+    return shared[:, None].expand(-1, views, -1, -1, -1).flatten(0, 1)
+
+
 class ConvBlock(nn.Module):
     """3x3 conv (optionally stride 2) -> GroupNorm -> SiLU."""
 
@@ -79,7 +109,7 @@ class ConvBlock(nn.Module):
         self.norm = nn.GroupNorm(_groups(cout, groups), cout)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return F.silu(self.norm(self.conv(x)))
+        return _silu(self.norm(self.conv(x)))
 
 
 class CrossViewMix(nn.Module):
@@ -94,11 +124,18 @@ class CrossViewMix(nn.Module):
         self.proj = nn.Conv2d(3 * channels, channels, 1)
 
     def forward(self, x: torch.Tensor, views: int) -> torch.Tensor:
-        xv = x.unflatten(0, (-1, views))
-        mean = xv.mean(1, keepdim=True).expand_as(xv)
-        top = xv.amax(1, keepdim=True).expand_as(xv)
-        joint = torch.cat([xv, mean, top], dim=2).flatten(0, 1)
-        return x + self.proj(F.silu(self.norm(joint)))
+        n, c, h, w = x.shape
+        mean, top = _view_mean_max(x, views)
+        # Written into one channels-last buffer: torch.cat with the views' repeated
+        # (stride-0) mean would return NCHW, and converting back costs a second
+        # full-resolution copy (at 1024 px, 8 views: 1.6 GB each).
+        joint = torch.empty_strided(
+            (n, 3 * c, h, w), (3 * c * h * w, 1, w * 3 * c, 3 * c), dtype=x.dtype, device=x.device
+        )
+        joint[:, :c] = x
+        joint[:, c : 2 * c] = _repeat_views(mean, views)
+        joint[:, 2 * c :] = _repeat_views(top, views)
+        return x + self.proj(_silu(self.norm(joint)))
 
 
 class ViewPool(nn.Module):
@@ -109,8 +146,7 @@ class ViewPool(nn.Module):
         self.proj = nn.Conv2d(2 * channels, channels, 1)
 
     def forward(self, x: torch.Tensor, views: int) -> torch.Tensor:
-        xv = x.unflatten(0, (-1, views))
-        return self.proj(torch.cat([xv.mean(1), xv.amax(1)], dim=1))
+        return self.proj(torch.cat(_view_mean_max(x, views), dim=1))
 
 
 class GlobalContext(nn.Module):
@@ -145,7 +181,8 @@ class ShadingBranch(nn.Module):
         """``encoded``, ``log_image``: ``[B, V, 3, H, W]``; ``lvh``: ``[B, V, 9, H, W]``."""
         views = log_image.shape[1]
         ratio = (log_image - log_image.mean(1, keepdim=True)) * RATIO_SCALE
-        x = self.encode(torch.cat([encoded, ratio, lvh], dim=2).flatten(0, 1))
+        x = torch.cat([encoded, ratio, lvh], dim=2).flatten(0, 1)
+        x = self.encode(x.contiguous(memory_format=torch.channels_last))
         return self.pool(self.post(self.mix(x, views)), views)
 
 
@@ -324,7 +361,7 @@ class SVBRDFEstimator(StrictLoadingMixin, ModelMixin, ConfigMixin):
         log_image = torch.log(images.to(dtype).clamp_min(0) + kernels.LOG_EPS)
         encoded = (log_image + INPUT_SHIFT) * INPUT_SCALE
         lvh = lvh.to(encoded.device)
-        x = torch.cat([encoded, lvh], dim=2).flatten(0, 1)
+        x = torch.cat([encoded, lvh], dim=2).flatten(0, 1).contiguous(memory_format=torch.channels_last)
         pyramid = []
         for enc, mix, pool in zip(self.encoder, self.mix, self.pool):
             x = mix(enc(x), v)

@@ -210,3 +210,44 @@ def test_no_shading_branch_and_old_checkpoints(tmp_path, random_views):
         SVBRDFEstimator(channel_mults=(1,), shading_channels=4)
     with pytest.raises(ValueError, match="shading_channels"):
         SVBRDFEstimator(shading_channels=-1)
+
+
+#: The channels-last mix against its textbook NCHW form, same float64 arithmetic up to
+#: summation order (mean over 3 views, GroupNorm statistics): a few ulps of float64.
+LAYOUT_ATOL = 1e-12
+
+
+@pytest.mark.parametrize("batch", [1, 2])
+def test_view_mean_max_and_mix_match_the_reference_layout(batch):
+    """``_view_mean_max`` and ``CrossViewMix`` (channels-last buffers, running sums) equal
+    the plain formulas ``mean(1)`` / ``amax(1)`` and ``f_v + conv1x1(SiLU(GN([f_v, mean,
+    max])))`` on NCHW tensors, for one and several materials, with and without autograd;
+    the gradient too."""
+    import torch.nn.functional as F
+
+    from estimator.model import CrossViewMix, _view_mean_max
+
+    views, c = 3, 8
+    gen = torch.Generator().manual_seed(0)
+    x = torch.randn(batch * views, c, 5, 6, generator=gen, dtype=torch.float64)
+    xv = x.unflatten(0, (batch, views))
+    for layout in (torch.contiguous_format, torch.channels_last):
+        mean, top = _view_mean_max(x.contiguous(memory_format=layout), views)
+        torch.testing.assert_close(mean, xv.mean(1), atol=LAYOUT_ATOL, rtol=0)
+        torch.testing.assert_close(top, xv.amax(1), atol=0, rtol=0)
+
+    mix = CrossViewMix(c, groups=4).double()
+    with torch.no_grad():
+        mix.norm.weight.normal_(generator=gen)
+        mix.norm.bias.normal_(generator=gen)
+    joint = torch.cat([xv, xv.mean(1, keepdim=True).expand_as(xv), xv.amax(1, keepdim=True).expand_as(xv)], 2)
+    expected = (x + mix.proj(F.silu(mix.norm(joint.flatten(0, 1))))).detach()
+    with torch.no_grad():
+        torch.testing.assert_close(mix(x, views), expected, atol=LAYOUT_ATOL, rtol=0)
+    xg = x.clone().requires_grad_(True)
+    (mix(xg, views) * expected).sum().backward()
+    xr = x.clone().requires_grad_(True)
+    xrv = xr.unflatten(0, (batch, views))
+    jr = torch.cat([xrv, xrv.mean(1, keepdim=True).expand_as(xrv), xrv.amax(1, keepdim=True).expand_as(xrv)], 2)
+    ((xr + mix.proj(F.silu(mix.norm(jr.flatten(0, 1))))) * expected).sum().backward()
+    torch.testing.assert_close(xg.grad, xr.grad, atol=LAYOUT_ATOL, rtol=0)
