@@ -34,11 +34,17 @@ from estimator.losses import MAP_WEIGHT, NORMAL_LOSSES, NORMAL_WEIGHT, RENDER_WE
 from estimator.model import SVBRDFEstimator
 from materials.capture_domain import CaptureDomain
 from materials.dataset import TRAIN_SEEDS, GroupConfig, RenderedGroups
-from materials.domain_groups import DATA_DOMAINS, DomainGroups, check_data_options, training_texture_folders
+from materials.domain_groups import (
+    DATA_DOMAINS,
+    DATA_OPTIONS,
+    DomainGroups,
+    check_data_options,
+    training_texture_folders,
+)
 from materials.io.atomic import atomic_file, atomic_folder
 from materials.relit_pool import RelitMixedGroups
 from materials.types import Material
-from training.checkpoint import MODEL_DIR, latest_checkpoint, load_checkpoint, read_trainer_state
+from training.checkpoint import MODEL_DIR, check_resumed_run, latest_checkpoint, load_checkpoint, read_trainer_state
 from training.config import config_of, differences, from_dict, model_config, parse, to_dict
 from training.loop import Loop, resumed_line
 from training.schedule import warmup_cosine
@@ -277,27 +283,14 @@ def _load_initial_weights(model: SVBRDFEstimator, cfg: TrainConfig) -> None:
 
 def _resume_model(folder: Path, cfg: TrainConfig, print_fn) -> SVBRDFEstimator:
     """The model of checkpoint ``folder``, after checking it belongs to this run."""
+    check_resumed_run(folder, cfg, (*DATA_OPTIONS, "relit_pool", "p_relit"))
     saved_cfg = read_trainer_state(folder)["config"]
-    if cfg.init_from is not None and saved_cfg.get("init_from") != cfg.init_from:
-        # Resuming would silently drop --init-from (the checkpoint holds other weights).
-        raise ValueError(
-            f"{folder}: a checkpoint of another run (init_from={saved_cfg.get('init_from')!r}) is in ckpt_dir; "
-            f"use a fresh --ckpt-dir for --init-from {cfg.init_from}, or --no-resume"
-        )
     model = SVBRDFEstimator.from_pretrained(folder / MODEL_DIR)
     changed = differences(cfg.model, config_of(EstimatorModelConfig, model))
     if changed:
         raise ValueError(
             f"{folder}: checkpoint architecture differs from the requested one (requested, saved): {changed}"
         )
-    for name in ("domain", "textures", "p_texture", "p_mix", "p_paper", "relit_pool", "p_relit"):
-        # Checkpoints from before these options trained on the paper's data.
-        saved = saved_cfg.get(name, getattr(TrainConfig, name))
-        if saved != getattr(cfg, name):
-            raise ValueError(
-                f"{folder}: the checkpoint was trained with {name}={saved!r}, the run asks for {getattr(cfg, name)!r}; "
-                f"resume with the same data, or start a fresh --ckpt-dir with --init-from"
-            )
     if saved_cfg.get("normal_loss", cfg.normal_loss) != cfg.normal_loss:
         print_fn(
             f"warning: {folder} was trained with --normal-loss {saved_cfg['normal_loss']}; continuing with {cfg.normal_loss}"

@@ -50,7 +50,7 @@ from materials.capture_domain import (
     sample_degradation,
     sample_geometry,
 )
-from materials.dataset import TRAIN_SEEDS, GroupConfig, _item_seed, scale_and_crop
+from materials.dataset import TRAIN_SEEDS, GroupConfig, RenderedGroups, _item_seed, scale_and_crop
 from materials.io.encoding import decode_normal, hwc_to_chw
 from materials.io.errors import FormatError
 from materials.procedural import generate
@@ -58,6 +58,8 @@ from materials.types import Material
 
 __all__ = [
     "DomainGroups",
+    "relighting_groups",
+    "DATA_OPTIONS",
     "training_texture_folders",
     "check_data_options",
     "DATA_DOMAINS",
@@ -185,6 +187,11 @@ def check_data_options(domain: str, textures: str | None, **probabilities: float
             raise ValueError(f"{name} must be in [0, 1], got {p}")
 
 
+#: The trainers' data options (their ``TrainConfig`` fields, checked by
+#: ``check_data_options``): a checkpoint resumes only with the values it was trained on.
+DATA_OPTIONS = ("domain", "textures", "p_texture", "p_mix", "p_paper")
+
+
 def training_texture_folders(root: str | os.PathLike) -> list[Path]:
     """The ``REAL_DEV_TRAIN`` material folders under ``root`` (e.g.
     ``../shared/data/real-dev/materials``), the textures every trainer may use;
@@ -194,6 +201,37 @@ def training_texture_folders(root: str | os.PathLike) -> list[Path]:
     if missing:
         raise FileNotFoundError(f"textures: {root} lacks the training materials {missing}")
     return folders
+
+
+def relighting_groups(
+    config: GroupConfig,
+    domain: str = "paper",
+    textures: str | os.PathLike | None = None,
+    *,
+    p_texture: float = 0.25,
+    p_mix: float = 0.0,
+    p_paper: float = 0.0,
+) -> RenderedGroups | DomainGroups:
+    """The relighters' training groups over ``TRAIN_SEEDS`` (the diffusion and Bieron-style
+    trainers share it, so their comparison sees the same data): ``paper``, the clean
+    renders (``RenderedGroups``); ``capture``, ``CaptureDomain.relighting()`` (the photo
+    as the capture pipeline hands it to a relighter; items also carry the unclipped
+    ``clean`` views, the targets), with the ``REAL_DEV_TRAIN`` textures under ``textures``
+    when given. Options are checked by ``check_data_options``."""
+    check_data_options(
+        domain, None if textures is None else str(textures), p_texture=p_texture, p_mix=p_mix, p_paper=p_paper
+    )
+    if domain == "paper":
+        return RenderedGroups(TRAIN_SEEDS, config)
+    return DomainGroups(
+        TRAIN_SEEDS,
+        config,
+        CaptureDomain.relighting(),
+        textures=training_texture_folders(textures) if textures is not None else [],
+        p_texture=p_texture,
+        p_mix=p_mix,
+        p_paper=p_paper,
+    )
 
 
 # ---------------------------------------------------------------------- augmentation

@@ -27,6 +27,7 @@ parameters (``trainable_parameters``), the list it was built on.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import random
 import re
@@ -50,6 +51,7 @@ __all__ = [
     "load_checkpoint",
     "latest_checkpoint",
     "read_trainer_state",
+    "check_resumed_run",
     "restore_rng_state",
     "checkpoint_step",
     "trainable_parameters",
@@ -208,6 +210,31 @@ def _refuse_old_layouts(ckpt_dir: Path) -> None:
 def read_trainer_state(folder: str | Path) -> dict:
     """The JSON trainer state (step, history, config, elapsed_s, rng) of a checkpoint."""
     return json.loads((Path(folder) / _MARKER).read_text())
+
+
+def check_resumed_run(folder: str | Path, cfg: Any, data_fields: typing.Sequence[str]) -> None:
+    """Refuse to resume checkpoint ``folder`` with a run config ``cfg`` (a trainer's
+    ``TrainConfig`` dataclass) that would train on other data or silently drop
+    ``init_from``: each of ``data_fields`` must equal the saved run's value (a field a
+    checkpoint predates counts as the class default, the data every earlier run used).
+    Raises ``ValueError`` naming the field and what to do."""
+    saved = read_trainer_state(folder)["config"]
+    init_from = getattr(cfg, "init_from", None)
+    if init_from is not None and saved.get("init_from") != init_from:
+        # Resuming would silently drop --init-from (the checkpoint holds other weights).
+        raise ValueError(
+            f"{folder}: a checkpoint of another run (init_from={saved.get('init_from')!r}) is in ckpt_dir; "
+            f"use a fresh --ckpt-dir for --init-from {init_from}"
+            + (", or --no-resume" if hasattr(cfg, "resume") else "")
+        )
+    defaults = {f.name: f.default for f in dataclasses.fields(cfg)}
+    for name in data_fields:
+        before = saved.get(name, defaults[name])
+        if before != getattr(cfg, name):
+            raise ValueError(
+                f"{folder}: the checkpoint was trained with {name}={before!r}, the run asks for {getattr(cfg, name)!r}; "
+                f"resume with the same data, or start a fresh --ckpt-dir with --init-from"
+            )
 
 
 def save_checkpoint(

@@ -2,8 +2,13 @@
 
     python -m relight.bieron.train --ckpt-dir runs/bieron-ckpt --steps 1000 --size 64
 
-or ``relight train bieron ...``. Data: ``materials.dataset.RenderedGroups`` (one
-procedural material under 8 lights per group, paper light sampling, SPEC section 3).
+or ``relight train bieron ...``. Data (``materials.domain_groups.relighting_groups``, the
+diffusion trainer's too): ``--domain paper`` (default), ``materials.dataset.RenderedGroups``
+(one procedural material under 8 lights per group, paper light sampling, SPEC section 3);
+``--domain capture``, ``CaptureDomain.relighting()`` (camera heights and offsets, crops,
+exposure, white balance, noise, clipped highlights, 8-bit, JPEG; ``--textures``,
+``--p-texture``, ``--p-mix``, ``--p-paper`` as for the diffusion trainer), targets the
+unclipped views. ``--init-from`` starts from saved weights (e.g. ``weights/bieron``).
 Input = view 0 (flash at the camera); targets = ``targets_per_group`` of views 1..7 (all
 7 by default; a random subset per group trades lights for more materials per step at
 the same cost).
@@ -32,15 +37,17 @@ import dataclasses
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Literal
 
 import torch
 from accelerate import Accelerator
 
 import kernels
-from materials.dataset import TRAIN_SEEDS, GroupConfig, RenderedGroups
+from materials.dataset import GroupConfig, RenderedGroups
+from materials.domain_groups import DATA_OPTIONS, DomainGroups, check_data_options, relighting_groups
 from relight.bieron.model import BieronRelighter
-from training.checkpoint import MODEL_DIR, latest_checkpoint, load_checkpoint
+from training.checkpoint import MODEL_DIR, check_resumed_run, latest_checkpoint, load_checkpoint
 from training.config import config_of, differences, from_dict, model_config, parse, to_dict
 from training.loop import Loop, resumed_line
 from training.schedule import SCHEDULES, lr_factor
@@ -92,6 +99,14 @@ class TrainConfig:
         keep: checkpoint folders kept.
         resume: continue from ``ckpt_dir``'s latest checkpoint when there is one.
         progress: show a progress bar.
+        domain: the training data (module docstring): ``paper`` or ``capture``.
+        textures: with ``capture``, a folder holding the ``REAL_DEV_TRAIN`` texture
+            materials (``materials.domain_groups``); none: procedural materials only.
+        p_texture: with ``capture`` and ``textures``, the probability of a texture item.
+        p_mix: with ``capture``, the probability that a procedural item blends two.
+        p_paper: with ``capture``, the probability of a clean paper-setup item instead.
+        init_from: a saved ``BieronRelighter`` folder whose weights start a new run (same
+            architecture as ``model``); ignored when ``ckpt_dir`` has a checkpoint.
         model: the architecture (``BieronRelighter``'s arguments; the trainer's default
             ``residual`` is ``lambertian``).
     """
@@ -114,6 +129,12 @@ class TrainConfig:
     keep: int = 2
     resume: bool = True
     progress: bool = True
+    domain: Literal["paper", "capture"] = "paper"
+    textures: str | None = None
+    p_texture: float = 0.25
+    p_mix: float = 0.0
+    p_paper: float = 0.0
+    init_from: str | None = None
     model: BieronModelConfig = field(default_factory=lambda: BieronModelConfig(residual="lambertian"))
 
     def __post_init__(self) -> None:
@@ -123,14 +144,16 @@ class TrainConfig:
             raise ValueError(f"schedule must be one of {SCHEDULES}, got {self.schedule!r}")
         if not 1 <= self.targets_per_group <= 7:
             raise ValueError(f"targets_per_group must be in 1..7 (views 1..7), got {self.targets_per_group}")
+        check_data_options(self.domain, self.textures, p_texture=self.p_texture, p_mix=self.p_mix, p_paper=self.p_paper)
         for name in ("batch", "steps", "ckpt_every", "keep"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
 
 
-def sample_batch(data: RenderedGroups, cfg: TrainConfig, step: int, process: int = 0) -> dict:
+def sample_batch(data: RenderedGroups | DomainGroups, cfg: TrainConfig, step: int, process: int = 0) -> dict:
     """The batch of ``step``: ``photo [B, 3, H, W]``, ``light_pos [B, T, 3]``, ``camera_pos [B, 3]``,
-    ``target [B, T, 3, H, W]`` (linear radiance), deterministic in (seed, step, process)."""
+    ``target [B, T, 3, H, W]`` (linear radiance: a capture-domain item's unclipped
+    ``clean`` views), deterministic in (seed, step, process)."""
     gen = step_generator(cfg.seed, step, stream=process, streams=MAX_PROCESSES)
     index = torch.randint(0, len(data), (cfg.batch,), generator=gen)
     items = [data[int(i)] for i in index]
@@ -139,7 +162,7 @@ def sample_batch(data: RenderedGroups, cfg: TrainConfig, step: int, process: int
         "photo": torch.stack([it["images"][0] for it in items]),
         "light_pos": torch.stack([it["light_pos"][v] for it, v in zip(items, views)]),
         "camera_pos": torch.stack([it["camera_pos"][0] for it in items]),
-        "target": torch.stack([it["images"][v] for it, v in zip(items, views)]),
+        "target": torch.stack([it.get("clean", it["images"])[v] for it, v in zip(items, views)]),
     }
 
 
@@ -147,6 +170,18 @@ def training_loss(model, batch: dict) -> torch.Tensor:
     """Mean L1 between the prediction and the tone-mapped target (module docstring)."""
     pred = model(batch["photo"], batch["light_pos"], batch["camera_pos"])
     return (pred - kernels.tonemap(batch["target"])).abs().mean()
+
+
+def _saved_model(cfg: TrainConfig) -> BieronRelighter:
+    """``cfg.init_from``'s weights; its architecture must equal ``cfg.model``."""
+    folder = Path(cfg.init_from)
+    if not (folder / "config.json").is_file():
+        raise FileNotFoundError(f"init_from: {folder} is not a saved BieronRelighter (no config.json)")
+    model = BieronRelighter.from_pretrained(folder)
+    changed = differences(cfg.model, config_of(BieronModelConfig, model))
+    if changed:
+        raise ValueError(f"init_from: {folder} has another architecture (requested, saved): {changed}")
+    return model
 
 
 def main(cfg: TrainConfig) -> dict:
@@ -157,12 +192,15 @@ def main(cfg: TrainConfig) -> dict:
 
     folder = latest_checkpoint(cfg.ckpt_dir) if cfg.resume else None
     if folder is not None:
+        check_resumed_run(folder, cfg, DATA_OPTIONS)
         model = BieronRelighter.from_pretrained(folder / MODEL_DIR)
         changed = differences(cfg.model, config_of(BieronModelConfig, model))
         if changed:
             raise ValueError(
                 f"{folder}: checkpoint architecture differs from the requested one (requested, saved): {changed}"
             )
+    elif cfg.init_from is not None:
+        model = _saved_model(cfg)
     else:
         model = BieronRelighter(**dataclasses.asdict(cfg.model))
     optimizer = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -172,7 +210,10 @@ def main(cfg: TrainConfig) -> dict:
         start, history, elapsed = state.step, state.history, state.elapsed_s
         accelerator.print(resumed_line(state))
     model, optimizer = accelerator.prepare(model, optimizer)
-    data = RenderedGroups(TRAIN_SEEDS, GroupConfig(size=cfg.size, views=8, seed=cfg.seed))
+    config = GroupConfig(size=cfg.size, views=8, seed=cfg.seed)
+    data = relighting_groups(
+        config, cfg.domain, cfg.textures, p_texture=cfg.p_texture, p_mix=cfg.p_mix, p_paper=cfg.p_paper
+    )
 
     def step_fn(step: int) -> tuple[torch.Tensor, dict]:
         batch = sample_batch(data, cfg, step, accelerator.process_index)

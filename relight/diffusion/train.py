@@ -32,14 +32,14 @@ from accelerate import Accelerator
 from diffusers.training_utils import EMAModel
 from torch.utils.data import DataLoader, Subset
 
-from materials.capture_domain import CaptureDomain
-from materials.dataset import TRAIN_SEEDS, GroupConfig, RenderedGroups
-from materials.domain_groups import DATA_DOMAINS, DomainGroups, check_data_options, training_texture_folders
+from materials.dataset import GroupConfig, RenderedGroups
+from materials.domain_groups import DATA_DOMAINS, DATA_OPTIONS, DomainGroups, check_data_options, relighting_groups
 from relight.diffusion.config import TINY_TRAINING_DEFAULTS
 from relight.diffusion.model import RelightDiffusion, make_train_scheduler
 from relight.diffusion.objective import diffusion_loss
 from training.checkpoint import (
     MODEL_DIR,
+    check_resumed_run,
     latest_checkpoint,
     load_checkpoint,
     restore_rng_state,
@@ -171,18 +171,10 @@ def learning_rate(cfg: TrainConfig, step: int) -> float:
 
 def training_data(cfg: TrainConfig) -> RenderedGroups | DomainGroups:
     """The training groups of ``cfg.domain`` over ``TRAIN_SEEDS``, 8 views at the model's
-    resolution (``TrainConfig.domain``)."""
+    resolution (``TrainConfig.domain``; ``materials.domain_groups.relighting_groups``)."""
     config = GroupConfig(size=cfg.model.resolution, views=8, seed=cfg.seed)
-    if cfg.domain == "paper":
-        return RenderedGroups(TRAIN_SEEDS, config)
-    return DomainGroups(
-        TRAIN_SEEDS,
-        config,
-        CaptureDomain.relighting(),
-        textures=training_texture_folders(cfg.textures) if cfg.textures is not None else [],
-        p_texture=cfg.p_texture,
-        p_mix=cfg.p_mix,
-        p_paper=cfg.p_paper,
+    return relighting_groups(
+        config, cfg.domain, cfg.textures, p_texture=cfg.p_texture, p_mix=cfg.p_mix, p_paper=cfg.p_paper
     )
 
 
@@ -208,6 +200,7 @@ def main(cfg: TrainConfig) -> Path | None:
     torch.manual_seed(cfg.seed)
     folder = latest_checkpoint(cfg.ckpt_dir)
     if folder is not None:
+        check_resumed_run(folder, cfg, DATA_OPTIONS)
         model = RelightDiffusion.from_pretrained(folder / MODEL_DIR)
         # sd21_path is where the frozen weights are read from, not the architecture.
         changed = differences(cfg.model, config_of(DiffusionModelConfig, model), ignore=("sd21_path",))

@@ -2,13 +2,19 @@
 history; a rerun resumes from it (exactly: the same weights as an uninterrupted run);
 flags map onto the config dataclass."""
 
+import dataclasses
+
 import pytest
 import torch
 from safetensors.torch import load_file
 
+from materials.dataset import GroupConfig, RenderedGroups
+from materials.domain_groups import REAL_DEV_TRAIN, DomainGroups, relighting_groups, save_texture_folder
+from materials.procedural import generate
 from relight.bieron.model import BieronRelighter
-from relight.bieron.train import BieronModelConfig, TrainConfig, main, parse_args
+from relight.bieron.train import MAX_PROCESSES, BieronModelConfig, TrainConfig, main, parse_args, sample_batch
 from training.checkpoint import latest_checkpoint, read_trainer_state
+from training.seeding import step_generator
 
 TINY = BieronModelConfig(base_channels=8, channel_mults=(1, 2), norm_groups=4, residual="lambertian")
 
@@ -88,3 +94,67 @@ def test_old_architecture_flags_still_work_for_one_release(capsys):
     assert cfg.model.base_channels == 16 and cfg.model.channel_mults == (1, 2) and cfg.model.residual == "none"
     err = capsys.readouterr().err
     assert "--base-channels is deprecated" in err and "--model.base-channels" in err
+
+
+def _texture_root(root):
+    """The ``REAL_DEV_TRAIN`` texture folders under ``root``, made from procedural maps."""
+    for k, name in enumerate(REAL_DEV_TRAIN):
+        save_texture_folder(root / name, generate(200 + k, size=40))
+    return root
+
+
+def test_capture_domain_targets_the_unclipped_views(tmp_path):
+    """``--domain capture`` shares the diffusion trainer's data (``relighting_groups``): the
+    photo is the degraded view 0, the targets are the items' ``clean`` views."""
+    root = _texture_root(tmp_path / "tex")
+    cfg = _cfg(tmp_path, 2, domain="capture", textures=str(root), p_texture=0.5, p_mix=0.5)
+    data = relighting_groups(
+        GroupConfig(size=cfg.size, views=8, seed=cfg.seed), "capture", root, p_texture=0.5, p_mix=0.5
+    )
+    assert type(data) is DomainGroups and data.texture_names == list(REAL_DEV_TRAIN)
+    batch = sample_batch(data, cfg, step=0)
+    # Rebuild the batch from the items the step drew: targets from "clean", not "images".
+    index = torch.randint(0, len(data), (cfg.batch,), generator=step_generator(cfg.seed, 0, streams=MAX_PROCESSES))
+    items = [data[int(i)] for i in index]
+    torch.testing.assert_close(batch["photo"], torch.stack([it["images"][0] for it in items]), atol=0, rtol=0)
+    clean = torch.stack([it["clean"] for it in items])  # [B, 8, 3, H, W]
+    degraded = torch.stack([it["images"] for it in items])
+    assert not torch.equal(clean, degraded)  # the degradations did change the views
+    for b in range(cfg.batch):
+        for t in range(cfg.targets_per_group):
+            matches = [v for v in range(1, 8) if torch.equal(batch["target"][b, t], clean[b, v])]
+            assert matches, f"target {b},{t} is not one of the item's clean views"
+    # The paper domain (the default) is the stream of every earlier run.
+    assert type(relighting_groups(GroupConfig(size=16, views=8, seed=0))) is RenderedGroups
+
+
+def test_capture_domain_fine_tune_from_saved_weights_and_resume_checks(tmp_path):
+    root = _texture_root(tmp_path / "tex")
+    start = BieronRelighter(**dataclasses.asdict(TINY))
+    start.save_pretrained(tmp_path / "start")
+    capture = dict(domain="capture", textures=str(root), p_texture=0.5, p_paper=0.3, init_from=str(tmp_path / "start"))
+    cfg = _cfg(tmp_path, 2, **capture)
+    cfg.lr = 0.0  # the weights stay those of init_from: the run did start from them
+    cfg.weight_decay = 0.0
+    main(cfg)
+    trained, saved = _weights(tmp_path / "ckpt"), start.state_dict()
+    for k in saved:
+        torch.testing.assert_close(trained[k], saved[k], atol=0, rtol=0, msg=k)
+    # A checkpoint resumes only with the data (and init_from) it was trained on.
+    with pytest.raises(ValueError, match="p_paper"):
+        main(_cfg(tmp_path, 3, **{**capture, "p_paper": 0.0}))
+    with pytest.raises(ValueError, match="domain"):
+        main(_cfg(tmp_path, 3, init_from=capture["init_from"]))
+    with pytest.raises(ValueError, match="another run"):
+        main(_cfg(tmp_path, 3, **{**capture, "init_from": str(root)}))
+    # init_from must hold a model of the requested architecture.
+    with pytest.raises(FileNotFoundError, match="config.json"):
+        main(_cfg(tmp_path / "x", 1, init_from=str(root)))
+    with pytest.raises(ValueError, match="architecture"):
+        main(
+            _cfg(tmp_path / "y", 1, init_from=str(tmp_path / "start"), model=dataclasses.replace(TINY, base_channels=4))
+        )
+    flags = parse_args(["--domain", "capture", "--textures", str(root), "--p-paper", "0.3", "--init-from", "w"])
+    assert (flags.domain, flags.textures, flags.p_paper, flags.init_from) == ("capture", str(root), 0.3, "w")
+    with pytest.raises(ValueError, match="capture"):
+        TrainConfig(textures=str(root))  # textures only mean something in the capture domain
