@@ -25,7 +25,7 @@ DATA = Path(__file__).resolve().parents[1] / "data"
 REFERENCE = DATA / "shipped_reference.safetensors"
 #: max |float32 - float64| of each shipped network's output (values in [0, 1]) on the
 #: reference inputs, printed by make_shipped_reference.py (AMD EPYC, AVX-512).
-FLOAT32_ERROR = {"diffusion": 4.0e-7, "bieron": 2.8e-7, "estimator": 3.6e-7}
+FLOAT32_ERROR = {"diffusion": 4.0e-7, "bieron": 2.9e-7, "estimator": 3.6e-7}
 #: Tolerance = SAFETY x FLOAT32_ERROR. Another CPU evaluates the same float32 network
 #: with other rounding: each run is within about its float32-vs-float64 distance of the
 #: float64 result, so two runs within ~2x it; the convolution algorithm oneDNN picks per
