@@ -42,6 +42,7 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from materials.io.atomic import atomic_file, atomic_folder
+from training.config import config_of, differences
 
 __all__ = [
     "MODEL_DIR",
@@ -52,6 +53,7 @@ __all__ = [
     "latest_checkpoint",
     "read_trainer_state",
     "check_resumed_run",
+    "load_init_from",
     "restore_rng_state",
     "checkpoint_step",
     "trainable_parameters",
@@ -235,6 +237,24 @@ def check_resumed_run(folder: str | Path, cfg: Any, data_fields: typing.Sequence
                 f"{folder}: the checkpoint was trained with {name}={before!r}, the run asks for {getattr(cfg, name)!r}; "
                 f"resume with the same data, or start a fresh --ckpt-dir with --init-from"
             )
+
+
+def load_init_from(
+    folder: str | Path, model_cls: Any, config_cls: type, requested: Any, *, ignore: typing.Sequence[str] = ()
+) -> Any:
+    """The model saved in ``folder`` (``model_cls.from_pretrained``), the start of a run's
+    ``--init-from``, after checking its architecture (``config_cls``, read back with
+    ``training.config.config_of``) equals ``requested`` except for ``ignore``d fields.
+    Raises ``FileNotFoundError`` (no ``config.json``) or ``ValueError`` (another
+    architecture)."""
+    folder = Path(folder)
+    if not (folder / "config.json").is_file():
+        raise FileNotFoundError(f"init_from: {folder} is not a saved {model_cls.__name__} (no config.json)")
+    model = model_cls.from_pretrained(folder)
+    changed = differences(requested, config_of(config_cls, model), ignore=ignore)
+    if changed:
+        raise ValueError(f"init_from: {folder} has another architecture (requested, saved): {changed}")
+    return model
 
 
 def save_checkpoint(

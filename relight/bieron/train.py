@@ -37,7 +37,6 @@ import dataclasses
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Literal
 
 import torch
@@ -47,7 +46,7 @@ import kernels
 from materials.dataset import GroupConfig, RenderedGroups
 from materials.domain_groups import DATA_OPTIONS, DomainGroups, check_data_options, relighting_groups
 from relight.bieron.model import BieronRelighter
-from training.checkpoint import MODEL_DIR, check_resumed_run, latest_checkpoint, load_checkpoint
+from training.checkpoint import MODEL_DIR, check_resumed_run, latest_checkpoint, load_checkpoint, load_init_from
 from training.config import config_of, differences, from_dict, model_config, parse, to_dict
 from training.loop import Loop, resumed_line
 from training.schedule import SCHEDULES, lr_factor
@@ -172,18 +171,6 @@ def training_loss(model, batch: dict) -> torch.Tensor:
     return (pred - kernels.tonemap(batch["target"])).abs().mean()
 
 
-def _saved_model(cfg: TrainConfig) -> BieronRelighter:
-    """``cfg.init_from``'s weights; its architecture must equal ``cfg.model``."""
-    folder = Path(cfg.init_from)
-    if not (folder / "config.json").is_file():
-        raise FileNotFoundError(f"init_from: {folder} is not a saved BieronRelighter (no config.json)")
-    model = BieronRelighter.from_pretrained(folder)
-    changed = differences(cfg.model, config_of(BieronModelConfig, model))
-    if changed:
-        raise ValueError(f"init_from: {folder} has another architecture (requested, saved): {changed}")
-    return model
-
-
 def main(cfg: TrainConfig) -> dict:
     """Train (or resume) and return a summary dict (step, elapsed_s, final_loss_mean50, checkpoint)."""
     torch.set_num_threads(cfg.threads)
@@ -200,7 +187,7 @@ def main(cfg: TrainConfig) -> dict:
                 f"{folder}: checkpoint architecture differs from the requested one (requested, saved): {changed}"
             )
     elif cfg.init_from is not None:
-        model = _saved_model(cfg)
+        model = load_init_from(cfg.init_from, BieronRelighter, BieronModelConfig, cfg.model)
     else:
         model = BieronRelighter(**dataclasses.asdict(cfg.model))
     optimizer = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)

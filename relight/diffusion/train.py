@@ -42,6 +42,7 @@ from training.checkpoint import (
     check_resumed_run,
     latest_checkpoint,
     load_checkpoint,
+    load_init_from,
     restore_rng_state,
     trainable_parameters,
 )
@@ -182,14 +183,8 @@ def _initial_model(cfg: TrainConfig) -> RelightDiffusion:
     """A new run's model: ``cfg.init_from``'s weights (same architecture) or a fresh one."""
     if cfg.init_from is None:
         return _new_model(cfg.model)
-    folder = Path(cfg.init_from)
-    if not (folder / "config.json").is_file():
-        raise FileNotFoundError(f"init_from: {folder} is not a saved RelightDiffusion (no config.json)")
-    model = RelightDiffusion.from_pretrained(folder)
-    changed = differences(cfg.model, config_of(DiffusionModelConfig, model), ignore=("sd21_path",))
-    if changed:
-        raise ValueError(f"init_from: {folder} has another architecture (requested, saved): {changed}")
-    return model
+    # sd21_path is where the frozen weights are read from, not the architecture.
+    return load_init_from(cfg.init_from, RelightDiffusion, DiffusionModelConfig, cfg.model, ignore=("sd21_path",))
 
 
 def main(cfg: TrainConfig) -> Path | None:
