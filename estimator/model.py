@@ -27,6 +27,11 @@ Data flow for a batch of B materials seen in V views (any V >= 1), shapes symbol
    head reads it with the decoder features and adds to the normal head's x, y logits:
    the trunk is trained to see through the lighting (for the diffuse map), the branch to
    read it (``DESIGN.md``, "Shading branch").
+7. Generated-view flag (``generated_flag``): a view may be marked as made by a relighter
+   rather than photographed (``generated [B, V]`` bool). A learned vector per encoder
+   level, zero at initialisation, is added to the marked views' features before the
+   cross-view correlation, so one model can learn how far to trust generated views
+   without trusting real ones less (``DESIGN.md``, "Generated views").
 
 Output: a batched ``materials.types.Material`` (maps ``[B, C, H, W]``, linear, float32).
 
@@ -253,6 +258,10 @@ class SVBRDFEstimator(StrictLoadingMixin, ModelMixin, ConfigMixin):
             map (``estimator/DESIGN.md``, "Shading branch"); 0 leaves it out (the
             architecture before 2026-12-02, and of checkpoints saved without the field).
             The shipped model and new training runs use 16.
+        generated_flag: learn one vector per encoder level added to the features of views
+            marked generated (``forward``'s ``generated``); zero-initialised, so a model
+            grown from one without it starts unchanged. False: ``generated`` is ignored
+            (the architecture of checkpoints saved without the field).
     Raises:
         ValueError: naming the argument, for non-positive sizes, empty or non-positive
             ``channel_mults``, a negative ``shading_channels`` or one with a single level.
@@ -278,6 +287,7 @@ class SVBRDFEstimator(StrictLoadingMixin, ModelMixin, ConfigMixin):
         norm_groups: int = 8,
         plane_size: float = 4.0,
         shading_channels: int = 0,
+        generated_flag: bool = False,
     ):
         super().__init__()
         if base_channels < 1 or adapter_width < 1 or norm_groups < 1:
@@ -311,6 +321,9 @@ class SVBRDFEstimator(StrictLoadingMixin, ModelMixin, ConfigMixin):
             self.pool.append(ViewPool(c))
             cin = c
         self.context = GlobalContext(widths[-1])
+        self.generated_embed = (
+            nn.ParameterList([nn.Parameter(torch.zeros(c)) for c in widths]) if generated_flag else None
+        )
 
         self.decoder = nn.ModuleList()
         for i in reversed(range(len(widths) - 1)):
@@ -337,12 +350,20 @@ class SVBRDFEstimator(StrictLoadingMixin, ModelMixin, ConfigMixin):
             nn.init.zeros_(self.shading_head.out.bias)
 
     # ------------------------------------------------------------------ stages
-    def encode(self, images: torch.Tensor, light_pos: torch.Tensor, camera_pos: torch.Tensor) -> list[torch.Tensor]:
+    def encode(
+        self,
+        images: torch.Tensor,
+        light_pos: torch.Tensor,
+        camera_pos: torch.Tensor,
+        generated: torch.Tensor | None = None,
+    ) -> list[torch.Tensor]:
         """Per-view encoding, cross-view correlation and pooling.
 
         Args:
             images: ``[B, V, 3, H, W]`` linear radiance (negative values clamped to 0).
             light_pos, camera_pos: ``[B, V, 3]`` or ``[V, 3]`` positions (``dgrsise`` scene units).
+            generated: ``[B, V]`` or ``[V]`` bool, True for views a relighter made (None:
+                none); used only by a model built with ``generated_flag``.
         Returns:
             The pooled pyramid, one ``[B, C_i, H / 2^i, W / 2^i]`` per level; the last is
             the bottleneck latent (global context already added). With the shading branch,
@@ -362,14 +383,36 @@ class SVBRDFEstimator(StrictLoadingMixin, ModelMixin, ConfigMixin):
         encoded = (log_image + INPUT_SHIFT) * INPUT_SCALE
         lvh = lvh.to(encoded.device)
         x = torch.cat([encoded, lvh], dim=2).flatten(0, 1).contiguous(memory_format=torch.channels_last)
+        flags = self._generated_flags(generated, b, v, x)
         pyramid = []
-        for enc, mix, pool in zip(self.encoder, self.mix, self.pool):
-            x = mix(enc(x), v)
+        for i, (enc, mix, pool) in enumerate(zip(self.encoder, self.mix, self.pool)):
+            x = enc(x)
+            if flags is not None:
+                assert self.generated_embed is not None
+                x = x + flags * self.generated_embed[i].to(x.dtype)[None, :, None, None]
+            x = mix(x, v)
             pyramid.append(pool(x, v))
         pyramid[-1] = self.context(pyramid[-1])
         if self.shading is not None:
             pyramid[0] = torch.cat([pyramid[0], self.shading(encoded, log_image, lvh)], dim=1)
         return pyramid
+
+    def _generated_flags(
+        self, generated: torch.Tensor | None, b: int, v: int, like: torch.Tensor
+    ) -> torch.Tensor | None:
+        """``[B * V, 1, 1, 1]`` 0/1 of the views marked generated, in ``like``'s dtype and
+        device; None when the model has no flag or no view is marked."""
+        if generated is None or self.generated_embed is None:
+            return None
+        if not isinstance(generated, torch.Tensor) or generated.dtype != torch.bool:
+            raise TypeError(
+                f"generated must be a bool tensor, got {type(generated).__name__} {getattr(generated, 'dtype', '')}"
+            )
+        if generated.shape not in ((v,), (b, v)):
+            raise ValueError(f"generated must be [V] or [B, V] = [{v}] or [{b}, {v}], got {list(generated.shape)}")
+        if not bool(generated.any()):
+            return None
+        return generated.expand(b, v).reshape(b * v, 1, 1, 1).to(device=like.device, dtype=like.dtype)
 
     def decode(self, pyramid: Sequence[torch.Tensor], latent_offset: torch.Tensor | None = None) -> torch.Tensor:
         """Shared decoder: pyramid (+ ``latent_offset`` on the bottleneck, same shape as
@@ -409,13 +452,15 @@ class SVBRDFEstimator(StrictLoadingMixin, ModelMixin, ConfigMixin):
         camera_pos: torch.Tensor,
         *,
         latent_offset: torch.Tensor | None = None,
+        generated: torch.Tensor | None = None,
     ) -> Material:
-        """Estimate SVBRDF maps from V views (see ``encode`` for the argument shapes).
+        """Estimate SVBRDF maps from V views (see ``encode`` for the argument shapes and
+        ``generated``).
 
         Returns a Material with maps ``[B, C, H, W]``: diffuse, specular (linear RGB in
         [0, 1]), normal (unit, z > 0), roughness (in [0, 1]).
         """
-        return self.predict_maps(self.decode(self.encode(images, light_pos, camera_pos), latent_offset))
+        return self.predict_maps(self.decode(self.encode(images, light_pos, camera_pos, generated), latent_offset))
 
     @property
     def _decoder_channels(self) -> int:

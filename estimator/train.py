@@ -113,12 +113,13 @@ class TrainConfig:
         p_paper: with ``capture``, the probability that an item is rendered in the
             paper's clean setup instead (``DomainGroups``' ``p_paper``): keeps the clean,
             unclipped inputs a capture-only fine-tune forgets.
-        relit_pool: with ``paper``, a relit pool file (``materials.relit_pool``,
-            ``scripts/make_relit_pool.py``): a share ``p_relit`` of the items have views
-            1.. made by a relighter instead of rendered, so the estimator learns what
-            relit views are worth (issue 15, item 5). The stream is the pool's
-            ``GroupConfig`` (its ``size`` and ``views`` must equal ``size`` and
-            ``max_views``).
+        relit_pool: a relit pool file (``materials.relit_pool``,
+            ``scripts/make_relit_pool.py``): a share ``p_relit`` of the items are the
+            pool's paper-domain groups with views 1.. made by a relighter instead of
+            rendered, so the estimator learns what relit views are worth (issue 15, item
+            5); the other items come from ``domain``'s stream. The pool's ``size`` and
+            ``views`` must equal ``size`` and ``max_views``. With ``model.generated_flag``
+            the relit views are marked generated (``SVBRDFEstimator``'s ``generated``).
         p_relit: with ``relit_pool``, the share of relit items.
         map_weight, render_weight, normal_weight: loss weights (``estimator.losses``).
         normal_loss: ``mse`` or ``l1``, the normal map's term (``estimator.losses``).
@@ -192,8 +193,6 @@ class TrainConfig:
             p_paper=self.p_paper,
             p_relit=self.p_relit,
         )
-        if self.relit_pool is not None and self.domain != "paper":
-            raise ValueError("relit_pool needs domain='paper' (the pool holds paper-domain groups)")
         if self.min_views > self.max_views:
             raise ValueError(f"min_views ({self.min_views}) must not exceed max_views ({self.max_views})")
         factor = 2 ** (len(self.model.channel_mults) - 1)
@@ -210,15 +209,21 @@ class TrainConfig:
 
 
 def training_data(cfg: TrainConfig) -> Dataset:
-    """The training groups of ``cfg.domain`` over ``TRAIN_SEEDS`` (``TrainConfig.domain``)."""
-    if cfg.domain == "paper" and cfg.relit_pool is not None:
-        data = RelitMixedGroups(cfg.relit_pool, cfg.p_relit, TRAIN_SEEDS)
-        if (data.config.size, data.config.views) != (cfg.size, cfg.max_views):
-            raise ValueError(
-                f"relit_pool {cfg.relit_pool} holds {data.config.views} views of {data.config.size} px; "
-                f"the run asks for {cfg.max_views} of {cfg.size}"
-            )
-        return data
+    """The training groups of ``cfg.domain`` over ``TRAIN_SEEDS`` (``TrainConfig.domain``),
+    mixed with a relit pool's items when ``cfg.relit_pool`` is set."""
+    base = _domain_data(cfg)
+    if cfg.relit_pool is None:
+        return base
+    data = RelitMixedGroups(cfg.relit_pool, cfg.p_relit, TRAIN_SEEDS, base=base)
+    if (data.config.size, data.config.views) != (cfg.size, cfg.max_views):
+        raise ValueError(
+            f"relit_pool {cfg.relit_pool} holds {data.config.views} views of {data.config.size} px; "
+            f"the run asks for {cfg.max_views} of {cfg.size}"
+        )
+    return data
+
+
+def _domain_data(cfg: TrainConfig) -> Dataset:
     if cfg.domain == "paper":
         return RenderedGroups(TRAIN_SEEDS, cfg.group_config())
     textures = training_texture_folders(cfg.textures) if cfg.textures is not None else []
@@ -263,22 +268,37 @@ def _load_initial_weights(model: SVBRDFEstimator, cfg: TrainConfig) -> None:
     """Copy the weights of the saved estimator ``cfg.init_from`` into ``model``.
 
     The saved architecture must equal ``cfg.model``, or be it without the shading branch
-    (a checkpoint from before the branch, or one saved with ``shading_channels=0``): then
-    every saved weight is copied and the branch keeps its initialisation, whose
-    zero-initialised head leaves the model's output equal to the saved model's.
+    (a checkpoint from before the branch, or one saved with ``shading_channels=0``) and/or
+    without the generated-view flag: then every saved weight is copied and the new parts
+    keep their initialisation (the branch's zero-initialised head, the flag's zero
+    vectors), which leaves the model's output equal to the saved model's.
     """
     folder = Path(cfg.init_from)
     if not (folder / "config.json").is_file():
         raise FileNotFoundError(f"init_from: {folder} is not a saved estimator (no config.json)")
     source = SVBRDFEstimator.from_pretrained(folder)
     saved = config_of(EstimatorModelConfig, source)
-    with_branch = dataclasses.replace(saved, shading_channels=cfg.model.shading_channels)
-    grows = saved.shading_channels == 0 and with_branch == cfg.model
-    if saved != cfg.model and not grows:
+    grown = saved
+    if saved.shading_channels == 0:
+        grown = dataclasses.replace(grown, shading_channels=cfg.model.shading_channels)
+    if not saved.generated_flag:
+        grown = dataclasses.replace(grown, generated_flag=cfg.model.generated_flag)
+    if grown != cfg.model:
         raise ValueError(f"init_from: {folder} has architecture {saved}, the run asks for {cfg.model}")
     missing, unexpected = model.load_state_dict(source.state_dict(), strict=False)
-    if unexpected or not all(k.startswith(("shading.", "shading_head.")) for k in missing):
+    if unexpected or not all(k.startswith(("shading.", "shading_head.", "generated_embed.")) for k in missing):
         raise RuntimeError(f"init_from: {folder}: unexpected weights {unexpected}, missing {missing}")
+
+
+def generated_views(batch: dict, views: list[int]) -> torch.Tensor:
+    """``[B, len(views)]`` bool: True for the selected views a relighter made (views 1.. of
+    a relit pool item, ``batch["relit"]``); all False for batches without that key."""
+    relit = batch.get("relit")
+    b = batch["images"].shape[0]
+    if relit is None:
+        return torch.zeros(b, len(views), dtype=torch.bool)
+    later = torch.tensor([v > 0 for v in views])
+    return relit.bool().reshape(b, 1) & later.reshape(1, -1)
 
 
 def _resume_model(folder: Path, cfg: TrainConfig, print_fn) -> SVBRDFEstimator:
@@ -336,7 +356,10 @@ def main(cfg: TrainConfig) -> Path:
         views = select_views(
             batch["images"].shape[1], cfg.max_views, step_generator(cfg.seed, step, stream=1), cfg.min_views
         )
-        pred = model(batch["images"][:, views], batch["light_pos"][:, views], batch["camera_pos"][:, views])
+        generated = generated_views(batch, views)
+        pred = model(
+            batch["images"][:, views], batch["light_pos"][:, views], batch["camera_pos"][:, views], generated=generated
+        )
         parts = estimator_loss(
             pred,
             Material.from_stacked(batch["maps"]),

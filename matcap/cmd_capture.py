@@ -50,6 +50,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="refinement weight of each relit view; the photo's is 1 (default 0.1)",
     )
     p.add_argument(
+        "--flatness",
+        type=float,
+        default=None,
+        metavar="W",
+        help="refinement weight of the flat-sample prior against low-frequency normal tilt (default 3; 0 turns it off)",
+    )
+    p.add_argument(
         "--falloff",
         choices=("none", "inverse-square"),
         default=None,
@@ -114,6 +121,7 @@ def _config(args):
         ("--relit", args.relit, lambda v: 0 <= v <= len(EVAL_LIGHTS), f"must be 0..{len(EVAL_LIGHTS)}"),
         ("--refine", args.refine, lambda v: v >= 0, "must be >= 0"),
         ("--relit-weight", args.relit_weight, lambda v: 0 <= v < float("inf"), "must be a number >= 0"),
+        ("--flatness", args.flatness, lambda v: 0 <= v < float("inf"), "must be a number >= 0"),
         ("--fov", args.fov, lambda v: 0 < v < 180, "must lie strictly between 0 and 180 degrees"),
         ("--max-side", args.max_side, lambda v: WORKING_SIZE <= v <= MAX_SIDE, f"must be {WORKING_SIZE}..{MAX_SIDE}"),
         (
@@ -138,6 +146,7 @@ def _config(args):
         "samples": args.samples,
         "refine_steps": args.refine,
         "relit_weight": args.relit_weight,
+        "flatness": args.flatness,
         "falloff": args.falloff,
         "fov": args.fov,
         "camera": parse_position(args.camera, "--camera") if args.camera else None,

@@ -166,6 +166,13 @@ def _add_capture_parser(what) -> None:
         metavar="TAU",
         help="robust refinement loss of the relit views at this scale (default: log-L1)",
     )
+    c.add_argument(
+        "--flatness",
+        type=float,
+        default=None,
+        metavar="W",
+        help="weight of the refinement's flat-sample normal prior (default: the pipeline's)",
+    )
     c.add_argument("--estimator", type=Path, default=None, help="estimator folder (default: the shipped one)")
     c.add_argument(
         "--checkpoint",
@@ -193,6 +200,8 @@ def run_capture(args) -> int:
     check_at_least_one("--samples", args.samples)
     try:
         sizes = {"estimate_size": args.estimate_size} if args.estimate_size is not None else {}
+        if args.flatness is not None:
+            sizes["flatness"] = args.flatness
         capture = CaptureConfig(
             samples=args.samples, relit_size=args.relit_size, relit_robust=args.relit_robust, **sizes
         )

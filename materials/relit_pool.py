@@ -29,7 +29,11 @@ from torch.utils.data import Dataset
 
 from materials.dataset import GroupConfig, RenderedGroups, _item_seed
 
-__all__ = ["RelitMixedGroups", "read_relit_pool", "write_relit_pool"]
+__all__ = ["ITEM_KEYS", "RelitMixedGroups", "read_relit_pool", "write_relit_pool"]
+
+#: The keys of a ``RelitMixedGroups`` item besides ``relit``: ``RenderedGroups``' keys,
+#: which every group dataset has (a ``DomainGroups`` item has more: ``clean``, ...).
+ITEM_KEYS = ("images", "light_pos", "camera_pos", "maps", "seed")
 
 
 def write_relit_pool(
@@ -75,26 +79,32 @@ class RelitMixedGroups(Dataset):
             pool's entry ``i mod N`` (its ground truth re-rendered, views 1.. relit)
             instead of the stream's item ``i``.
         seeds: the stream's material seeds; must be the ones the pool was made from.
+        base: where the other items come from (item ``i`` of it): None, the pool's own
+            ``RenderedGroups`` stream; or another dataset of groups of the same views and
+            size (e.g. ``materials.domain_groups.DomainGroups``), whose items are cut to
+            ``ITEM_KEYS`` so that both kinds batch together.
 
-    Items have ``RenderedGroups``' keys plus ``relit`` (bool tensor).
+    Items have ``ITEM_KEYS`` plus ``relit`` (bool tensor).
     """
 
-    def __init__(self, pool: str | os.PathLike, p_relit: float, seeds: range | list[int]):
+    def __init__(self, pool: str | os.PathLike, p_relit: float, seeds: range | list[int], base: Dataset | None = None):
         if not 0 <= p_relit <= 1:
             raise ValueError(f"p_relit must be in [0, 1], got {p_relit}")
         self.index, self.relit, self.config, self.source = read_relit_pool(pool)
         self.groups = RenderedGroups(seeds, self.config)
+        self.base = base if base is not None else self.groups
         self.p_relit = p_relit
 
     def __len__(self) -> int:
-        return len(self.groups)
+        return len(self.base)  # type: ignore[arg-type]
 
     def __getitem__(self, i: int) -> dict:
         g = torch.Generator().manual_seed(_item_seed(self.config.seed, i, stream=5))
         if float(torch.rand(1, generator=g)) >= self.p_relit:
-            return {**self.groups[i], "relit": torch.tensor(False)}
+            item = self.base[i]
+            return {**{k: item[k] for k in ITEM_KEYS}, "relit": torch.tensor(False)}
         j = i % len(self.index)
         item = self.groups[int(self.index[j])]
         images = item["images"].clone()
         images[1:] = self.relit[j].float()
-        return {**item, "images": images, "relit": torch.tensor(True)}
+        return {**{k: item[k] for k in ITEM_KEYS}, "images": images, "relit": torch.tensor(True)}

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from dataclasses import replace
@@ -50,6 +51,18 @@ def highlight_ratio(diffuse: torch.Tensor, frame, camera: torch.Tensor) -> float
     return float(lum[r <= DISC].mean() / lum[(r >= RING[0]) & (r <= RING[1])].mean())
 
 
+def low_tilt_deg(normal: torch.Tensor) -> float:
+    """RMS angle, degrees, of the low-pass normal of ``normal [3, H, W]`` (unit, tangent
+    space): ``atan(sqrt(tilt_energy))`` of its slopes (``matcap.capture.refine``), the
+    four-quadrant tilt a refinement uses to move a flash highlight. ~0 for a flat sample."""
+    from matcap.capture.refine import tilt_energy
+
+    n = normal.float()[None]
+    slope = n[:, :2] / n[:, 2:3].clamp_min(1e-3)
+    side = slope.shape[-1] - slope.shape[-1] % 64 or slope.shape[-1]
+    return math.degrees(math.atan(math.sqrt(float(tilt_energy(slope[..., :side, :side])))))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("photos", nargs="+", type=Path)
@@ -58,6 +71,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--figure", type=int, default=2, help="photos (rows) in the picture")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--estimator", type=Path, default=None, help="estimator folder (default: the pipeline's)")
+    parser.add_argument(
+        "--flatness", type=float, default=None, help="refinement flatness weight (default: the pipeline's)"
+    )
     args = parser.parse_args(argv)
 
     import kernels
@@ -69,6 +85,8 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(args.threads)
     pipeline = CapturePipeline.from_pretrained(estimator=args.estimator)
+    if args.flatness is not None:
+        pipeline.config = replace(pipeline.config, flatness=args.flatness)
     rows, records = [], []
     side_light = torch.tensor([[3.0, 1.0, 4.0]])
 
@@ -95,6 +113,9 @@ def main(argv: list[str] | None = None) -> int:
             "highlight_ratio_alone": round(highlight_ratio(alone.material.diffuse, alone.frame, camera), 3),
             "highlight_ratio_relit": round(highlight_ratio(with_relit.material.diffuse, with_relit.frame, camera), 3),
             "highlight_ratio_photo": round(highlight_ratio(photo.image, with_relit.frame, camera), 3),
+            "tilt_deg_alone": round(low_tilt_deg(alone.material.normal), 2),
+            "tilt_deg_relit": round(low_tilt_deg(with_relit.material.normal), 2),
+            "flatness": pipeline.config.flatness,
         }
         records.append(record)
         print(json.dumps(record), file=sys.stderr, flush=True)

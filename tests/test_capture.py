@@ -20,6 +20,7 @@ import kernels
 from estimator.config import TINY_TEST_CONFIG
 from estimator.model import SVBRDFEstimator
 from matcap.capture import (
+    DEFAULT_FLATNESS,
     MAX_SIDE,
     PROVENANCE_JSON,
     WORKING_SIZE,
@@ -36,6 +37,7 @@ from materials.frame import prepare_photo
 from materials.io import read_capture, read_exr, read_glb, write_png
 from materials.io.gltf import SPECULAR_EXTENSION
 from materials.lights import EVAL_LIGHTS
+from materials.types import Material
 from relight.interface import get_relighter
 
 #: 8-bit capture PNGs: half a code step in display space, y = x^(1/2.2), is at most
@@ -44,6 +46,11 @@ PNG_LINEAR_TOL = 2.2 * 0.5 / 255 + 1e-6
 #: float32 round-off of the same computation done twice in a different order (the
 #: pipeline vs the steps by hand): renders and sums of ~1e4 terms, relative ~1e-6.
 SAME_MATH_TOL = 1e-5
+#: ``tilt_energy`` of bumps (slopes up to 0.4) with an 8 px period at 128 px: a whole
+#: Gaussian (sigma 4 cells of 2 px) would scale such a sine by exp(-2 pi^2 sigma^2 / P^2)
+#: ~ 3e-9, but its taps stop at 3 sigma, and the cut-off mass (0.0027) bounds what passes:
+#: (0.4 * 0.0027)^2 ~ 1.2e-6, a 0.06 degree tilt, far below the 0.04 of a constant slope 0.2.
+FLAT_BUMPS_TOL = (0.4 * 0.0027) ** 2
 
 
 @pytest.fixture(scope="module")
@@ -187,6 +194,71 @@ def test_robust_relit_loss_is_log_l1_for_small_residuals_and_caps_outliers():
         CaptureConfig(relit_robust=-1.0)
 
 
+def test_tilt_energy_sees_low_frequency_tilt_not_bumps():
+    # A flat sample however bumpy: slopes of a periodic height field average to ~0 over
+    # each cell, so the prior costs ~nothing; a constant tilt s costs s^2 (the blur keeps
+    # a constant); a tilt in the masked-out padding costs nothing.
+    from matcap.capture.refine import FLATNESS_GRID, tilt_energy
+
+    side = 2 * FLATNESS_GRID
+    k = 2 * math.pi / 8  # bumps of an 8 px period: 16 whole periods across
+    u = (torch.arange(side, dtype=torch.float64) + 0.5) * k
+    # Slopes of the height 0.5 sin(u_x) sin(u_y), analytic: [1, 2, S, S], up to ~0.4.
+    bumps = (
+        0.5
+        * k
+        * torch.stack([torch.cos(u)[None, :] * torch.sin(u)[:, None], torch.sin(u)[None, :] * torch.cos(u)[:, None]])
+    )
+    bumps = bumps[None]
+    assert float(bumps.abs().max()) > 0.3
+    assert float(tilt_energy(bumps)) < FLAT_BUMPS_TOL
+    tilt = torch.full((1, 2, side, side), 0.2, dtype=torch.float64)
+    assert float(tilt_energy(tilt)) == pytest.approx(0.2**2, rel=1e-9)
+    mask = torch.zeros(side, side, dtype=torch.bool)
+    mask[:, : side // 2] = True
+    half = tilt.clone()
+    half[..., : side // 2] = 0.0
+    assert float(tilt_energy(half, mask)) == 0.0
+    # Smooth: its gradient is finite everywhere and points against the tilt.
+    x = tilt.clone().requires_grad_(True)
+    tilt_energy(x).backward()
+    assert bool(torch.isfinite(x.grad).all()) and bool((x.grad > 0).all())
+
+
+def test_flatness_prior_removes_a_low_frequency_tilt(tiny_estimator):
+    # Start from maps whose normals tilt in four quadrants (what the refinement does to
+    # real photos) and refine against a photo of the flat material: with the prior the
+    # tilt left after the same steps is far smaller, and the loss it reports includes it.
+    from matcap.capture.refine import tilt_energy
+
+    side = 128
+    camera = torch.tensor([0.0, 0.0, 4.83])
+    flat = Material(
+        torch.full((1, 3, side, side), 0.4),
+        torch.tensor([0.0, 0.0, 1.0]).view(1, 3, 1, 1).expand(1, 3, side, side).clone(),
+        torch.full((1, 1, side, side), 0.5),
+        torch.full((1, 3, side, side), 0.04),
+    )
+    photo = kernels.render(*flat.map_tensors(), camera[None, None], camera)[0, 0]
+    sign = torch.where(torch.arange(side) < side // 2, -1.0, 1.0)
+    slope = torch.stack([sign[None, :].expand(side, side), sign[:, None].expand(side, side)]) * 0.2
+    tilted = torch.nn.functional.normalize(torch.cat([slope, torch.ones(1, side, side)])[None], dim=1)
+    init = Material(flat.diffuse, tilted, flat.roughness, flat.specular)
+    mask = torch.ones(side, side, dtype=torch.bool)
+    empty = torch.zeros(0, 3, 64, 64)
+
+    def left_tilt(flatness: float) -> float:
+        result = refine_full_resolution(
+            init, photo, mask, empty, mask, camera[None], camera, flatness=flatness, steps=20
+        )
+        n = result.material.normal
+        return float(tilt_energy(n[:, :2] / n[:, 2:3]))
+
+    assert left_tilt(DEFAULT_FLATNESS) < 0.25 * left_tilt(0.0)
+    with pytest.raises(ValueError, match="flatness must be a finite number >= 0"):
+        CaptureConfig(flatness=float("nan"))
+
+
 def test_relit_zero_equals_the_estimator_and_refinement_by_hand(tiny_estimator):
     photo = smooth_photo(96, 80, seed=3)
     config = CaptureConfig(relit=0, refine_steps=4, falloff="none")
@@ -209,7 +281,9 @@ def test_relit_zero_equals_the_estimator_and_refinement_by_hand(tiny_estimator):
     )
     empty = torch.zeros(0, 3, 64, 64)
     mask = frame.valid_mask()
-    result = refine_full_resolution(init, image, mask, empty, mask, camera[None], camera, photo_ceiling=1.0, steps=4)
+    result = refine_full_resolution(
+        init, image, mask, empty, mask, camera[None], camera, photo_ceiling=1.0, flatness=config.flatness, steps=4
+    )
     by_hand = frame.material_to_photo(result.material[0])
     assert out.refine_history == pytest.approx(result.history, rel=SAME_MATH_TOL)
     for name, t in by_hand.maps().items():
@@ -426,6 +500,7 @@ def test_cli_bad_photo_is_one_error_line_and_nothing_written(tmp_path, estimator
         (["--relighter", "nosuch"], "unknown relighter 'nosuch'"),
         (["--relighter", "lambertian", "--samples", "2"], "applies to sampling methods"),
         (["--relit-size", "100"], "--relit-size must be a multiple of 64"),
+        (["--flatness", "-1"], "--flatness must be a number >= 0"),
     ],
 )
 def test_cli_bad_settings(tmp_path, estimator_folder, capsys, extra, message):
@@ -476,7 +551,7 @@ def test_cli_interrupt_leaves_nothing_half_written(tmp_path, estimator_folder, m
 
 
 def test_help_numbers_match_the_code(capsys):
-    from matcap.capture import DEFAULT_REFINE_STEPS, DEFAULT_RELIGHT_STEPS, DEFAULT_RELIT_WEIGHT
+    from matcap.capture import DEFAULT_FLATNESS, DEFAULT_REFINE_STEPS, DEFAULT_RELIGHT_STEPS, DEFAULT_RELIT_WEIGHT
 
     with pytest.raises(SystemExit):
         main(["capture", "--help"])
@@ -484,6 +559,7 @@ def test_help_numbers_match_the_code(capsys):
     assert f"(default {DEFAULT_RELIGHT_STEPS}, its best setting)" in text
     assert f"refinement steps (default {DEFAULT_REFINE_STEPS})" in text
     assert f"the photo's is 1 (default {DEFAULT_RELIT_WEIGHT:g})" in text
+    assert f"low-frequency normal tilt (default {DEFAULT_FLATNESS:g};" in text
     assert f"at most {MAX_SIDE}" in text and f"relit views, 0-{len(EVAL_LIGHTS)}" in text
 
 

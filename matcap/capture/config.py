@@ -46,6 +46,12 @@ DEFAULT_REFINE_STEPS = 100
 #: at 8x the time and ~2 GB.
 DEFAULT_ESTIMATE_SIZE = 256
 DEFAULT_RELIT_WEIGHT = 0.1
+#: Weight of the refinement's flat-sample prior (``matcap.capture.refine.tilt_energy``):
+#: the low-frequency tilt of the normal map, which the refinement otherwise uses to
+#: explain a flash falloff that does not match the model's (four tilted quadrants around
+#: the flash on real photos). Value and measurements: README "Capture a material",
+#: "Flatness prior".
+DEFAULT_FLATNESS = 3.0
 #: Adam rate of the per-pixel logits and normal slopes (``estimator.refine.refine_maps``'s).
 REFINE_LR = 1e-2
 #: Lights of the re-renders (after the flash): the 7 evaluation lights.
@@ -74,6 +80,9 @@ class CaptureConfig:
         relit_robust: None (log-L1 for every view), or the scale of a robust loss for the
             relit views (``matcap.capture.refine._Target``: pixels a generated view gets
             badly wrong stop pulling the maps).
+        flatness: weight of the flat-sample prior on the refined normals (0: none;
+            ``DEFAULT_FLATNESS``): a photographed sample is flat, so its normal map
+            should not tilt at low frequency however bumpy its surface.
         falloff: ``"none"`` or ``"inverse-square"`` (package docstring).
         fov: field of view across the photo's long side, degrees (None: EXIF or 45).
         camera: camera (and flash) position ``(x, y, z)``, scene units; overrides ``fov``.
@@ -105,6 +114,7 @@ class CaptureConfig:
     photo_weight: float = 1.0
     relit_weight: float = DEFAULT_RELIT_WEIGHT
     relit_robust: float | None = None
+    flatness: float = DEFAULT_FLATNESS
     falloff: str = DEFAULT_FALLOFF
     fov: float | None = None
     camera: tuple[float, float, float] | None = None
@@ -132,6 +142,10 @@ class CaptureConfig:
         need(
             self.relit_robust is None or (math.isfinite(self.relit_robust) and self.relit_robust > 0),
             f"relit_robust must be a positive number, got {self.relit_robust}",
+        )
+        need(
+            math.isfinite(self.flatness) and self.flatness >= 0,
+            f"flatness must be a finite number >= 0, got {self.flatness}",
         )
         need(self.falloff in FALLOFFS, f"falloff must be one of {', '.join(FALLOFFS)}, got {self.falloff!r}")
         need(self.fov is None or 0 < self.fov < 180, f"field of view must lie in (0, 180) degrees, got {self.fov}")

@@ -239,12 +239,18 @@ class CapturePipeline:
             )
 
         # 5. The estimator on the 1 + K views at the estimate size (whole images: it is
-        #    convolutional, and windows are worse, see estimator.tiling).
+        #    convolutional, and windows are worse, see estimator.tiling). Views 1.. are
+        #    marked generated (an estimator built with ``generated_flag`` weighs them as
+        #    a relighter's, not as photos; others ignore the mark).
         with stage("5 estimate"):
             scale = self.estimator.config.plane_size / frame.plane_size
+            generated = torch.arange(1 + k) > 0
             with torch.no_grad():
                 estimate = self.estimator(
-                    capture.images[None], capture.light_pos[None] * scale, capture.camera_pos[None] * scale
+                    capture.images[None],
+                    capture.light_pos[None] * scale,
+                    capture.camera_pos[None] * scale,
+                    generated=generated,
                 )
 
         # 6. Refinement at the photo's full resolution against the photo and the relit
@@ -266,7 +272,7 @@ class CapturePipeline:
                     photo_weight=cfg.photo_weight, relit_weight=cfg.relit_weight, steps=cfg.refine_steps,
                     photo_ceiling=photo_ceiling if cfg.clip_aware else None,
                     relit_ceiling=ceiling if cfg.clip_aware else None, relit_robust=cfg.relit_robust,
-                    lr=cfg.refine_lr, render_kwargs=scene.render_kwargs, progress=progress,
+                    flatness=cfg.flatness, lr=cfg.refine_lr, render_kwargs=scene.render_kwargs, progress=progress,
                 )  # fmt: skip
                 refined, history = result.material, result.history
 

@@ -6,6 +6,8 @@ unconstrained parameters, the views rendered per call, and the memory estimate
 
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 from tqdm.auto import tqdm
@@ -120,6 +122,52 @@ def _view_chunks(views: list[int], side: int) -> list[list[int]]:
     return [views[i : i + n] for i in range(0, len(views), n)]
 
 
+#: The flatness prior (``tilt_energy``) looks at the slopes area-averaged to this grid
+#: (the photo's padded side is a multiple of the 64 px working size) and then blurred by
+#: a Gaussian of ``FLATNESS_SIGMA`` grid cells: the low frequencies only, with a smooth
+#: gradient (averages over disjoint cells gave the maps a visible cell pattern).
+FLATNESS_GRID = 64
+#: 1/16 of the photo's side: a tilt that varies over a sixteenth of the sample or more.
+FLATNESS_SIGMA = 4.0
+
+
+def _gaussian_taps(sigma: float) -> torch.Tensor:
+    radius = int(math.ceil(3 * sigma))
+    x = torch.arange(-radius, radius + 1, dtype=torch.float64)  # normalised in float64, then cast
+    taps = torch.exp(-0.5 * (x / sigma) ** 2)
+    return taps / taps.sum()
+
+
+def tilt_energy(
+    slope: torch.Tensor,
+    mask: torch.Tensor | None = None,
+    grid: int = FLATNESS_GRID,
+    sigma: float = FLATNESS_SIGMA,
+) -> torch.Tensor:
+    """Mean squared low-pass normal slope: ``slope`` ``[1, 2, S, S]`` (``n_xy / n_z``),
+    zero where ``mask`` (``[S, S]`` bool, None: all True) is False, area-averaged to
+    ``grid x grid`` (S a multiple of it, or S itself if smaller) and blurred by a Gaussian
+    of ``sigma`` grid cells (reflected at the borders). Masked-out pixels (a photo's
+    padding) neither pay nor can cancel a tilt of the real pixels.
+
+    The mean slope over a region is the height difference across it divided by its
+    width, so this is ~0 for a flat sample however bumpy its surface; what it costs is a
+    tilt of the normal map at low frequency, the refinement's way of moving a flash
+    highlight it cannot otherwise explain (a four-quadrant tilt on real photos).
+    """
+    g = min(grid, slope.shape[-1])
+    x = area_downsample(slope if mask is None else slope * mask.to(slope.dtype), g)
+    taps = _gaussian_taps(sigma).to(x)
+    r = (taps.numel() - 1) // 2
+    if r >= g:
+        return x.mean(dim=(-2, -1)).square().mean()
+    c = x.shape[1]
+    x = F.pad(x, (r, r, r, r), mode="reflect")
+    x = F.conv2d(x, taps.view(1, 1, 1, -1).expand(c, 1, 1, -1), groups=c)
+    x = F.conv2d(x, taps.view(1, 1, -1, 1).expand(c, 1, -1, 1), groups=c)
+    return x.square().mean()
+
+
 def refine_memory_bytes(side: int, views: int) -> int:
     """Estimated peak bytes of ``refine_full_resolution`` at ``side x side`` (float32).
 
@@ -148,6 +196,7 @@ def refine_full_resolution(
     photo_ceiling: float | None = None,
     relit_ceiling: torch.Tensor | float | None = None,
     relit_robust: float | None = None,
+    flatness: float = 0.0,
     steps: int = DEFAULT_REFINE_STEPS,
     lr: float = REFINE_LR,
     tol: float = DEFAULT_TOL,
@@ -158,7 +207,7 @@ def refine_full_resolution(
     """Fit per-pixel maps at the photo's resolution to the photo and to lower-resolution
     relit views, through the Warp renderer.
 
-    Loss: ``sum_v w_v L_v / sum_v w_v`` with ``L_v`` the mean log-L1
+    Loss: ``sum_v w_v L_v / sum_v w_v + flatness * tilt_energy`` with ``L_v`` the mean log-L1
     (``kernels.log_l1_loss``, Deschaintre et al. 2018) over the masked pixels: view 0 the
     maps rendered under the flash against ``photo`` at full resolution; view k >= 1
     rendered at full resolution under light k, area-downsampled to the relit size, against
@@ -177,6 +226,8 @@ def refine_full_resolution(
             tensor broadcasting to ``[K, 3, s, s]``.
         relit_robust: None (log-L1), or the scale of the robust loss of the relit views
             (``_Target``): generated views may be wrong in places, the photo is not.
+        flatness: weight of the flat-sample prior ``flatness * tilt_energy(slopes,
+            photo_mask)`` added to the loss (0: none).
         render_kwargs: ``kernels.render`` keywords (preset, falloff, intensity).
 
     Returns:
@@ -239,6 +290,10 @@ def refine_full_resolution(
             loss.backward()  # one chunk's graph at a time; the leaves' .grad accumulates
             value += float(loss.detach())
         torch.autograd.backward(list(maps), [t.grad for t in leaves])
+        if flatness > 0:
+            prior = flatness * tilt_energy(params[1], photo_mask)
+            prior.backward()
+            value += float(prior.detach())
         return value
 
     with tqdm(total=steps, desc="refine (full resolution)", leave=False, disable=not progress) as bar:
@@ -256,7 +311,10 @@ def refine_full_resolution(
     with torch.no_grad():
         if steps:
             maps = _from_parameters(params).map_tensors()
-            if sum(float(chunk_loss(maps, step)) for step in plan) >= best_loss:
+            final = sum(float(chunk_loss(maps, step)) for step in plan)
+            if flatness > 0:
+                final += float(flatness * tilt_energy(params[1], photo_mask))
+            if final >= best_loss:
                 for p, b in zip(params, best):
                     p.copy_(b)
         return RefineResult(_from_parameters(params), history, 0)

@@ -251,3 +251,47 @@ def test_view_mean_max_and_mix_match_the_reference_layout(batch):
     jr = torch.cat([xrv, xrv.mean(1, keepdim=True).expand_as(xrv), xrv.amax(1, keepdim=True).expand_as(xrv)], 2)
     ((xr + mix.proj(F.silu(mix.norm(jr.flatten(0, 1))))) * expected).sum().backward()
     torch.testing.assert_close(xg.grad, xr.grad, atol=LAYOUT_ATOL, rtol=0)
+
+
+#: The same float32 convs on the same inputs in another call: maps in [0, 1] agree to a
+#: few ulps (oneDNN may pick another kernel order); 1e-6 is ~8 ulps at 1.
+SAME_CONVS_TOL = 1e-6
+
+
+def test_generated_flag_marks_views_and_starts_as_a_no_op():
+    # A flagged model starts equal to the same model without the flag (zero vectors); once
+    # its vectors are non-zero the mark changes the maps, and only through marked views.
+    import dataclasses
+
+    torch.manual_seed(0)
+    plain = SVBRDFEstimator(**TINY_TEST_CONFIG.to_dict()).eval()
+    flagged = SVBRDFEstimator(**dataclasses.replace(TINY_TEST_CONFIG, generated_flag=True).to_dict()).eval()
+    missing, unexpected = flagged.load_state_dict(plain.state_dict(), strict=False)
+    assert not unexpected and all(k.startswith("generated_embed.") for k in missing) and missing
+    gen = torch.Generator().manual_seed(3)
+    images = torch.rand(2, 3, 3, 32, 32, generator=gen)
+    lights = torch.tensor([[0.0, 0.0, 4.0], [2.0, 1.0, 5.0], [-1.0, 2.0, 4.0]])
+    camera = torch.tensor([0.0, 0.0, 4.0]).expand(3, 3)
+    marks = torch.tensor([False, True, True])
+
+    def maps(model, generated):
+        with torch.no_grad():
+            out = model(images, lights, camera, generated=generated)
+            return torch.cat([t.flatten(1) for t in out.map_tensors()], dim=1)  # [B, all map values]
+
+    reference = maps(plain, None)
+    assert torch.equal(maps(plain, marks), reference)  # a model without the flag ignores the mark
+    assert torch.equal(maps(flagged, marks), reference)  # zero vectors: unchanged
+    with torch.no_grad():
+        for p in flagged.generated_embed:
+            p.normal_(generator=gen)
+    assert torch.equal(maps(flagged, torch.zeros(3, dtype=torch.bool)), reference)
+    assert not torch.allclose(maps(flagged, marks), reference)
+    per_batch = torch.tensor([[False, True, True], [False, False, False]])
+    both = maps(flagged, per_batch)  # [B, V] marks: only the first material moves
+    assert not torch.allclose(both[0], reference[0])
+    assert torch.allclose(both[1], reference[1], atol=SAME_CONVS_TOL)
+    with pytest.raises(ValueError, match="generated must be"):
+        maps(flagged, torch.tensor([False, True]))
+    with pytest.raises(TypeError, match="bool tensor"):
+        maps(flagged, torch.tensor([0, 1, 1]))

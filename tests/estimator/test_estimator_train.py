@@ -17,6 +17,7 @@ from estimator.train import (
     EstimatorModelConfig,
     StepBatchSampler,
     TrainConfig,
+    _load_initial_weights,
     main,
     parse_args,
     select_views,
@@ -364,11 +365,9 @@ def test_relit_pool_data_and_flags(tmp_path):
     data = training_data(cfg)
     assert type(data) is RelitMixedGroups and data.p_relit == 1.0
     torch.testing.assert_close(data[1]["images"][1:], relit[1], atol=2.0**-11, rtol=0)
-    # The pool must match the run's size and views; it holds paper-domain groups only.
+    # The pool must match the run's size and views.
     with pytest.raises(ValueError, match="views"):
         training_data(_tiny_train_config(tmp_path, relit_pool=str(pool), max_views=3))
-    with pytest.raises(ValueError, match="paper"):
-        TrainConfig(domain="capture", relit_pool=str(pool))
     with pytest.raises(ValueError, match="p_relit"):
         TrainConfig(p_relit=2.0)
     cli = parse_args(["--relit-pool", str(pool), "--p-relit", "0.3"])
@@ -377,3 +376,64 @@ def test_relit_pool_data_and_flags(tmp_path):
     main(_tiny_train_config(tmp_path / "r", steps=1, ckpt_every=1, relit_pool=str(pool), p_relit=0.5))
     with pytest.raises(ValueError, match="p_relit"):
         main(_tiny_train_config(tmp_path / "r", steps=2, relit_pool=str(pool), p_relit=0.2))
+
+
+def test_relit_pool_mixes_with_the_capture_domain_and_marks_generated_views(tmp_path):
+    # Relit items (the pool's paper groups) and capture-domain items batch together: both
+    # are cut to the pool's keys. The relit items' views 1.. are the ones marked generated.
+    from estimator.train import generated_views
+    from materials.relit_pool import ITEM_KEYS, RelitMixedGroups, write_relit_pool
+
+    pool_cfg = GroupConfig(size=32, views=4, source_size=64, seed=0)
+    relit = torch.rand(2, 3, 3, 32, 32, generator=torch.Generator().manual_seed(1))
+    pool = write_relit_pool(tmp_path / "pool.safetensors", torch.arange(2), relit, pool_cfg, {"relighter": "test"})
+    cfg = _tiny_train_config(tmp_path, domain="capture", relit_pool=str(pool), p_relit=0.5)
+    data = training_data(cfg)
+    assert type(data) is RelitMixedGroups and type(data.base) is DomainGroups
+    items = [data[i] for i in range(8)]
+    kinds = {bool(item["relit"]) for item in items}
+    assert kinds == {True, False}  # both kinds in 8 draws at p = 0.5 for this seed
+    for i, item in enumerate(items):
+        assert set(item) == {*ITEM_KEYS, "relit"}
+        if not item["relit"]:
+            assert torch.equal(item["images"], data.base[i]["images"])  # the capture stream's own item
+    batch = torch.utils.data.default_collate(items)
+    flags = generated_views(batch, [0, 2, 3])
+    assert flags.shape == (8, 3) and not bool(flags[:, 0].any())
+    assert torch.equal(flags[:, 1], batch["relit"]) and torch.equal(flags[:, 2], batch["relit"])
+    assert not bool(generated_views({"images": batch["images"]}, [0, 1]).any())
+    # One step of a flagged model on that mix.
+    main(
+        _tiny_train_config(
+            tmp_path / "g",
+            steps=1,
+            ckpt_every=1,
+            domain="capture",
+            relit_pool=str(pool),
+            model=dataclasses.replace(TINY, generated_flag=True),
+        )
+    )
+
+
+def test_init_from_grows_the_generated_flag_without_changing_the_output(tmp_path):
+    source = SVBRDFEstimator(**dataclasses.asdict(TINY))
+    source.save_pretrained(tmp_path / "src")
+    flagged = dataclasses.replace(TINY, generated_flag=True)
+    cfg = _tiny_train_config(tmp_path, init_from=str(tmp_path / "src"), model=flagged)
+    model = SVBRDFEstimator(**dataclasses.asdict(flagged))
+    _load_initial_weights(model, cfg)
+    images = torch.rand(1, 3, 3, 32, 32, generator=torch.Generator().manual_seed(2))
+    lights = torch.tensor([[0.0, 0.0, 4.0], [2.0, 1.0, 5.0], [-1.0, 2.0, 4.0]])
+    camera = torch.tensor([0.0, 0.0, 4.0]).expand(3, 3)
+    marks = torch.tensor([False, True, True])
+    with torch.no_grad():
+        a, b = source(images, lights, camera), model(images, lights, camera, generated=marks)
+    for name, t in a.maps().items():
+        assert torch.equal(t, b.maps()[name]), name
+    # The flag is part of the architecture: a flagged source does not start an unflagged run.
+    model.save_pretrained(tmp_path / "flagged")
+    with pytest.raises(ValueError, match="architecture"):
+        _load_initial_weights(
+            SVBRDFEstimator(**dataclasses.asdict(TINY)),
+            _tiny_train_config(tmp_path, init_from=str(tmp_path / "flagged")),
+        )
