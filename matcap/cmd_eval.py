@@ -199,11 +199,12 @@ def run_capture(args) -> int:
     check_output_folder(args.out, overwrite=args.overwrite, marker=CAPTURE_MARKER)
     check_at_least_one("--samples", args.samples)
     try:
-        sizes = {"estimate_size": args.estimate_size} if args.estimate_size is not None else {}
-        if args.flatness is not None:
-            sizes["flatness"] = args.flatness
+        overrides = {"estimate_size": args.estimate_size, "flatness": args.flatness}
         capture = CaptureConfig(
-            samples=args.samples, relit_size=args.relit_size, relit_robust=args.relit_robust, **sizes
+            samples=args.samples,
+            relit_size=args.relit_size,
+            relit_robust=args.relit_robust,
+            **{k: v for k, v in overrides.items() if v is not None},
         )
     except ValueError as exc:
         raise UsageError(str(exc)) from None

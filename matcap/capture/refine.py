@@ -10,6 +10,7 @@ import math
 
 import torch
 import torch.nn.functional as F
+from kornia.filters import gaussian_blur2d
 from tqdm.auto import tqdm
 
 import kernels
@@ -131,13 +132,6 @@ FLATNESS_GRID = 64
 FLATNESS_SIGMA = 4.0
 
 
-def _gaussian_taps(sigma: float) -> torch.Tensor:
-    radius = int(math.ceil(3 * sigma))
-    x = torch.arange(-radius, radius + 1, dtype=torch.float64)  # normalised in float64, then cast
-    taps = torch.exp(-0.5 * (x / sigma) ** 2)
-    return taps / taps.sum()
-
-
 def tilt_energy(
     slope: torch.Tensor,
     mask: torch.Tensor | None = None,
@@ -157,15 +151,10 @@ def tilt_energy(
     """
     g = min(grid, slope.shape[-1])
     x = area_downsample(slope if mask is None else slope * mask.to(slope.dtype), g)
-    taps = _gaussian_taps(sigma).to(x)
-    r = (taps.numel() - 1) // 2
-    if r >= g:
+    r = math.ceil(3 * sigma)  # taps to 3 sigma
+    if r >= g:  # the blur would span the whole grid (reflect padding needs r < g)
         return x.mean(dim=(-2, -1)).square().mean()
-    c = x.shape[1]
-    x = F.pad(x, (r, r, r, r), mode="reflect")
-    x = F.conv2d(x, taps.view(1, 1, 1, -1).expand(c, 1, 1, -1), groups=c)
-    x = F.conv2d(x, taps.view(1, 1, -1, 1).expand(c, 1, -1, 1), groups=c)
-    return x.square().mean()
+    return gaussian_blur2d(x, 2 * r + 1, (sigma, sigma), border_type="reflect").square().mean()
 
 
 def refine_memory_bytes(side: int, views: int) -> int:
@@ -276,6 +265,13 @@ def refine_full_resolution(
         return loss
 
     params = _to_parameters(material)
+    # The prior's mask: None when every pixel is real (a square photo), which spares a
+    # full-resolution product per step.
+    flat_mask = None if bool(photo_mask.all()) else photo_mask
+
+    def prior_loss() -> torch.Tensor | None:
+        return flatness * tilt_energy(params[1], flat_mask) if flatness > 0 else None
+
     # fused: one kernel for the whole update (the per-tensor loop cost ~10% of a step).
     opt = torch.optim.Adam(params, lr=lr, fused=True)
     history: list[float] = []
@@ -290,8 +286,8 @@ def refine_full_resolution(
             loss.backward()  # one chunk's graph at a time; the leaves' .grad accumulates
             value += float(loss.detach())
         torch.autograd.backward(list(maps), [t.grad for t in leaves])
-        if flatness > 0:
-            prior = flatness * tilt_energy(params[1], photo_mask)
+        prior = prior_loss()
+        if prior is not None:
             prior.backward()
             value += float(prior.detach())
         return value
@@ -312,8 +308,9 @@ def refine_full_resolution(
         if steps:
             maps = _from_parameters(params).map_tensors()
             final = sum(float(chunk_loss(maps, step)) for step in plan)
-            if flatness > 0:
-                final += float(flatness * tilt_energy(params[1], photo_mask))
+            prior = prior_loss()
+            if prior is not None:
+                final += float(prior)
             if final >= best_loss:
                 for p, b in zip(params, best):
                     p.copy_(b)
