@@ -10,7 +10,14 @@ import torch
 
 from matcap.errors import UsageError
 
-__all__ = ["parse_position", "positions_or_default", "check_at_least_one", "set_sampling", "join_negative_values"]
+__all__ = [
+    "parse_position",
+    "positions_or_default",
+    "check_at_least_one",
+    "set_sampling",
+    "join_negative_values",
+    "parse_map_names",
+]
 
 _NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 # A comma-separated list of numbers whose first one is negative: "-1,0,5", "-.5, 2, 4e0".
@@ -59,6 +66,22 @@ def positions_or_default(texts: list[str] | None, default: torch.Tensor, what: s
     if not texts:
         return default
     return torch.tensor([parse_position(t, what) for t in texts], dtype=torch.float32)
+
+
+def parse_map_names(text: str | None, flag: str) -> tuple[str, ...] | None:
+    """``"roughness,specular"`` -> ``("roughness", "specular")``; ``"none"`` -> ``()``; None
+    passes. A name that is not a map is a UsageError naming ``flag``."""
+    from materials.types import MAP_CHANNELS
+
+    if text is None:
+        return None
+    names = tuple(v.strip() for v in text.split(",") if v.strip())
+    if names == ("none",):
+        return ()
+    unknown = [n for n in names if n not in MAP_CHANNELS]
+    if unknown or len(set(names)) != len(names):
+        raise UsageError(f"{flag} takes distinct names of {', '.join(MAP_CHANNELS)} (or none), got {text!r}")
+    return names
 
 
 def check_at_least_one(flag: str, value: int | None) -> None:

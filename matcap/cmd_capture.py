@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from matcap.args import check_at_least_one, parse_position
+from matcap.args import check_at_least_one, parse_map_names, parse_position
 from matcap.errors import UsageError
 
 __all__ = ["add_parser", "run", "read_capture_photo", "BUILTIN"]
@@ -47,7 +47,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--relit-weight",
         type=float,
         default=None,
-        help="refinement weight of each relit view; the photo's is 1 (default 0.1)",
+        help="refinement weight of each relit view; the photo's is 1 (default 0: the relit views "
+        "inform the estimator, the refinement fits the photo)",
+    )
+    p.add_argument(
+        "--relit-maps",
+        default=None,
+        metavar="NAMES",
+        help="maps the relit views may change in the refinement, comma-separated; the others are "
+        "fitted to the photo alone (default diffuse,normal,roughness,specular)",
+    )
+    p.add_argument(
+        "--photo-maps",
+        default=None,
+        metavar="NAMES",
+        help="maps the estimator takes from the photo alone, comma-separated, or none; the others "
+        "from the photo and the relit views (default diffuse,normal)",
     )
     p.add_argument(
         "--flatness",
@@ -147,6 +162,8 @@ def _config(args):
         "refine_steps": args.refine,
         "relit_weight": args.relit_weight,
         "flatness": args.flatness,
+        "relit_maps": parse_map_names(args.relit_maps, "--relit-maps"),
+        "photo_maps": parse_map_names(args.photo_maps, "--photo-maps"),
         "falloff": args.falloff,
         "fov": args.fov,
         "camera": parse_position(args.camera, "--camera") if args.camera else None,
@@ -155,7 +172,10 @@ def _config(args):
         "estimate_size": args.estimate_size,
         "seed": args.seed,
     }
-    return CaptureConfig(**{k: v for k, v in settings.items() if v is not None})
+    try:
+        return CaptureConfig(**{k: v for k, v in settings.items() if v is not None})
+    except ValueError as exc:  # a combination the flags' own checks cannot see
+        raise UsageError(str(exc)) from None
 
 
 def run(args) -> int:

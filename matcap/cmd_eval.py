@@ -16,7 +16,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from matcap.args import check_at_least_one, set_sampling
+from matcap.args import check_at_least_one, parse_map_names, set_sampling
 from matcap.errors import UsageError
 from matcap.outputs import check_output_folder
 
@@ -173,6 +173,25 @@ def _add_capture_parser(what) -> None:
         metavar="W",
         help="weight of the refinement's flat-sample normal prior (default: the pipeline's)",
     )
+    c.add_argument(
+        "--relit-weight",
+        type=float,
+        default=None,
+        metavar="W",
+        help="refinement weight of each relit view, the photo's is 1 (default: the pipeline's)",
+    )
+    c.add_argument(
+        "--relit-maps",
+        default=None,
+        metavar="NAMES",
+        help="comma-separated maps the relit views' refinement loss may change (default: the pipeline's)",
+    )
+    c.add_argument(
+        "--photo-maps",
+        default=None,
+        metavar="NAMES",
+        help="comma-separated maps the estimator takes from the photo alone ('none': none; default: the pipeline's)",
+    )
     c.add_argument("--estimator", type=Path, default=None, help="estimator folder (default: the shipped one)")
     c.add_argument(
         "--checkpoint",
@@ -199,7 +218,13 @@ def run_capture(args) -> int:
     check_output_folder(args.out, overwrite=args.overwrite, marker=CAPTURE_MARKER)
     check_at_least_one("--samples", args.samples)
     try:
-        overrides = {"estimate_size": args.estimate_size, "flatness": args.flatness}
+        overrides = {
+            "estimate_size": args.estimate_size,
+            "flatness": args.flatness,
+            "relit_weight": args.relit_weight,
+            "relit_maps": parse_map_names(args.relit_maps, "--relit-maps"),
+            "photo_maps": parse_map_names(args.photo_maps, "--photo-maps"),
+        }
         capture = CaptureConfig(
             samples=args.samples,
             relit_size=args.relit_size,

@@ -152,6 +152,61 @@ def test_relit_views_are_compared_at_their_resolution(tiny_estimator):
     assert result.history[0] < 1e-6
 
 
+def _flat_material(side: int, diffuse: float = 0.4, roughness: float = 0.5) -> Material:
+    return Material(
+        torch.full((1, 3, side, side), diffuse),
+        torch.tensor([0.0, 0.0, 1.0]).view(1, 3, 1, 1).expand(1, 3, side, side).clone(),
+        torch.full((1, 1, side, side), roughness),
+        torch.full((1, 3, side, side), 0.04),
+    )
+
+
+def test_relit_views_change_only_the_maps_routed_to_them():
+    # Relit views of a darker, glossier material, the photo weighted 0: with the relit
+    # views routed to roughness only, every other map stays exactly where it started
+    # (steps=0 gives the start after the parameters' round trip) while roughness moves;
+    # unrouted, the diffuse map moves too.
+    side = 64
+    camera = torch.tensor([0.0, 0.0, 4.83])
+    lights = torch.tensor([[0.0, 0.0, 4.83], [2.0, -1.0, 4.0], [-2.0, 1.0, 5.0]])
+    truth = _flat_material(side, diffuse=0.2, roughness=0.2)
+    relit = kernels.render(*truth.map_tensors(), lights[1:][None], camera)[0]
+    init = _flat_material(side)
+    mask = torch.ones(side, side, dtype=torch.bool)
+
+    def refine(steps: int, maps=("diffuse", "normal", "roughness", "specular")) -> Material:
+        return refine_full_resolution(
+            init, relit[0], mask, relit, mask, lights, camera, photo_weight=0.0, relit_weight=1.0,
+            relit_maps=maps, steps=steps,
+        ).material  # fmt: skip
+
+    start, routed, free = refine(0), refine(5, ("roughness",)), refine(5)
+    for name in ("diffuse", "normal", "specular"):
+        assert torch.equal(getattr(routed, name), getattr(start, name)), name
+    assert float((routed.roughness - start.roughness).abs().min()) > 0
+    assert float((free.diffuse - start.diffuse).abs().min()) > 0
+    with pytest.raises(ValueError, match="relit_maps must be a non-empty subset"):
+        refine(1, ("albedo",))
+    with pytest.raises(ValueError, match="relit_maps must be distinct names"):
+        CaptureConfig(relit_maps=("roughness", "roughness"))
+    with pytest.raises(ValueError, match="relit_maps cannot be empty"):
+        CaptureConfig(relit_maps=())
+
+
+def test_photo_maps_come_from_the_estimator_on_the_photo_alone(tiny_estimator):
+    # photo_maps picks those maps from a second estimator pass on the photo alone; the
+    # others stay the estimate from the photo and the relit views.
+    photo = smooth_photo(64, 64, seed=5)
+    alone = pipeline(tiny_estimator, None, relit=0, refine_steps=0)(photo).estimate
+    both = pipeline(tiny_estimator, refine_steps=0, photo_maps=())(photo).estimate
+    mixed = pipeline(tiny_estimator, refine_steps=0, photo_maps=("diffuse", "roughness"))(photo).estimate
+    for name in ("diffuse", "roughness"):
+        assert torch.equal(getattr(mixed, name), getattr(alone, name)), name
+    for name in ("normal", "specular"):
+        assert torch.equal(getattr(mixed, name), getattr(both, name)), name
+    assert not torch.equal(alone.diffuse, both.diffuse)  # the relit views do change the estimate
+
+
 def test_clipped_pixels_are_lower_bounds():
     # A target at its ceiling (an 8-bit photo's 1.0) only says "at least this bright": a
     # brighter render there costs nothing, a darker one costs as usual; unclipped pixels
@@ -501,6 +556,9 @@ def test_cli_bad_photo_is_one_error_line_and_nothing_written(tmp_path, estimator
         (["--relighter", "lambertian", "--samples", "2"], "applies to sampling methods"),
         (["--relit-size", "100"], "--relit-size must be a multiple of 64"),
         (["--flatness", "-1"], "--flatness must be a number >= 0"),
+        (["--relit-maps", "albedo"], "--relit-maps takes distinct names of diffuse, normal"),
+        (["--photo-maps", "normal,normal"], "--photo-maps takes distinct names"),
+        (["--relit-maps", "none"], "relit_maps cannot be empty"),
     ],
 )
 def test_cli_bad_settings(tmp_path, estimator_folder, capsys, extra, message):
@@ -551,15 +609,24 @@ def test_cli_interrupt_leaves_nothing_half_written(tmp_path, estimator_folder, m
 
 
 def test_help_numbers_match_the_code(capsys):
-    from matcap.capture import DEFAULT_FLATNESS, DEFAULT_REFINE_STEPS, DEFAULT_RELIGHT_STEPS, DEFAULT_RELIT_WEIGHT
+    from matcap.capture import (
+        DEFAULT_FLATNESS,
+        DEFAULT_PHOTO_MAPS,
+        DEFAULT_REFINE_STEPS,
+        DEFAULT_RELIGHT_STEPS,
+        DEFAULT_RELIT_MAPS,
+        DEFAULT_RELIT_WEIGHT,
+    )
 
     with pytest.raises(SystemExit):
         main(["capture", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert f"(default {DEFAULT_RELIGHT_STEPS}, its best setting)" in text
     assert f"refinement steps (default {DEFAULT_REFINE_STEPS})" in text
-    assert f"the photo's is 1 (default {DEFAULT_RELIT_WEIGHT:g})" in text
+    assert f"the photo's is 1 (default {DEFAULT_RELIT_WEIGHT:g}:" in text
     assert f"low-frequency normal tilt (default {DEFAULT_FLATNESS:g};" in text
+    assert f"fitted to the photo alone (default {','.join(DEFAULT_RELIT_MAPS)})" in text
+    assert f"the relit views (default {','.join(DEFAULT_PHOTO_MAPS) or 'none'})" in text
     assert f"at most {MAX_SIDE}" in text and f"relit views, 0-{len(EVAL_LIGHTS)}" in text
 
 

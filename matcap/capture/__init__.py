@@ -14,12 +14,16 @@ the folder). The steps:
    ``samples >= 2`` the per-pixel standard deviation across samples is the confidence
    map (high = uncertain; README "Relighting": it correlates with the error);
 4. one ``Capture``: the working photo as view 0, the relit views after it;
-5. the estimator on the 1 + K views at the working resolution;
+5. the estimator on the 1 + K views at the estimate size; the maps named in
+   ``CaptureConfig.photo_maps`` (default diffuse and normal) come from a second pass on
+   the photo alone: the relit views are 64 px and upsampled, so they blur and shift the
+   detail maps, while they do tell roughness and specular (``results/capture_views``);
 6. refinement at the photo's full resolution (``refine_full_resolution``): per-pixel maps,
    initialised from the estimator's maps upsampled, fitted through the Warp renderer to
    the full-resolution photo and to the relit views compared at *their* resolution
-   (render at full resolution, area-downsample, then the loss), a weight per view, the
-   padded pixels masked out;
+   (render at full resolution, area-downsample, then the loss), a weight per view (the
+   relit views' default weight is 0: fitting them cost re-render accuracy), optionally
+   routed to some maps only (``relit_maps``), the padded pixels masked out;
 7. the maps mapped back to the photo's pixel grid (``Frame.material_to_photo``);
 8. re-renders under the flash and the 7 evaluation lights, and a preview sheet.
 
@@ -67,11 +71,14 @@ from matcap.capture.config import (
     BUILTIN_SIZE,
     DEFAULT_FALLOFF,
     DEFAULT_FLATNESS,
+    DEFAULT_PHOTO_MAPS,
     DEFAULT_REFINE_STEPS,
     DEFAULT_RELIGHT_STEPS,
     DEFAULT_RELIGHTER,
+    DEFAULT_RELIT_MAPS,
     DEFAULT_RELIT_WEIGHT,
     FALLOFFS,
+    MAP_NAMES,
     MAX_SIDE,
     PROVENANCE_JSON,
     REFINE_LR,
@@ -122,6 +129,9 @@ __all__ = [
     "DEFAULT_RELIGHT_STEPS",
     "DEFAULT_FLATNESS",
     "DEFAULT_RELIT_WEIGHT",
+    "DEFAULT_RELIT_MAPS",
+    "DEFAULT_PHOTO_MAPS",
+    "MAP_NAMES",
     "DEFAULT_REFINE_STEPS",
     "REFINE_LR",
     "WORKING_SIZE",

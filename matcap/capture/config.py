@@ -8,6 +8,7 @@ import math
 from dataclasses import asdict, dataclass
 
 from materials.lights import EVAL_LIGHTS
+from materials.types import MAP_CHANNELS
 
 #: How the flash's light falls off over the plane (package docstring).
 FALLOFFS = ("none", "inverse-square")
@@ -31,21 +32,15 @@ WORKING_SIZE = 64
 #: (``benchmarks/bench_capture.py --sizes 2048``, ``benchmarks/results/capture_2048.json``).
 #: A larger photo must be downscaled first (``CaptureConfig.max_side`` does it).
 MAX_SIDE = 2048
-#: Refinement defaults (README "Capture a material", tables "relit view weight" and
-#: "steps"). Weight of each relit view (the photo weighs 1): over 5 real-texture and 4
-#: glossy procedural materials, re-render PSNR by weight 0 / 0.1 / 0.25 / 0.5 / 1 was
-#: 30.32 / 30.21 / 30.03 / 29.83 / 29.46 dB (real; photo alone 30.33) and 19.92 / 20.39 /
-#: 20.31 / 20.15 / 20.05 dB (glossy; alone 20.31): 0.1 is the best on the glossy set and
-#: within 0.12 dB of the photo alone on the real one, and roughness MSE on the glossy
-#: set falls from 0.130 (alone) to 0.057. Steps: 50 / 100 / 200 gave 20.24 / 20.39 / 20.24
-#: dB on the glossy set; 100 keeps 1024 px under the 120 s target (96 s measured).
+#: Refinement steps: 50 / 100 / 200 gave 20.24 / 20.39 / 20.24 dB on 4 glossy procedural
+#: materials (README "Capture a material", table "steps"); 100 keeps 1024 px under the
+#: 120 s target.
 DEFAULT_REFINE_STEPS = 100
 #: The estimator's input side: the whole image at 256 px re-renders 1.6-1.9 dB better
 #: than at 64 px upsampled (8 held-out materials at 256 px, 1 and 8 views, no refinement;
 #: ``results/estimator_resolution``), in 1 s for 8 views; 512 px adds nothing (-0.2 dB)
 #: at 8x the time and ~2 GB.
 DEFAULT_ESTIMATE_SIZE = 256
-DEFAULT_RELIT_WEIGHT = 0.1
 #: Weight of the refinement's flat-sample prior (``matcap.capture.refine.tilt_energy``):
 #: the low-frequency tilt of the normal map, which the refinement otherwise uses to
 #: explain a flash falloff that does not match the model's (four tilted quadrants around
@@ -55,6 +50,25 @@ DEFAULT_RELIT_WEIGHT = 0.1
 #: +0.35 dB; on the 10 real photos the normal maps' low-frequency tilt falls from 4.5 to
 #: 1.6 degrees (7 relit views). 30 left creases where the quadrants met.
 DEFAULT_FLATNESS = 3.0
+#: The maps' names, in ``Material.map_tensors`` order.
+MAP_NAMES = tuple(MAP_CHANNELS)
+#: How the relit views are used (``results/capture_views``: 13 held-out materials, 4
+#: procedural, 4 INRIA-format, 5 real-texture, at 256 px; re-render PSNR under 128 novel
+#: lights, mean over materials; the photo alone 30.60 dB). Until 2026-12-04 the relit
+#: views went to the estimator with the photo for every map and into the refinement at
+#: weight 0.1: 29.94 dB, below the photo alone. The relit views are 64 px upsampled to
+#: the estimate size, so the estimator's diffuse and normal maps from them are blurrier
+#: than from the photo: taking those two from the photo alone (``DEFAULT_PHOTO_MAPS``) gave
+#: 30.78; dropping the relit views from the refinement as well (``DEFAULT_RELIT_WEIGHT``
+#: 0: they then inform the estimator's roughness and specular only) 31.02, above the
+#: photo alone on every set (+1.11 / +0.25 / +0.02 dB). Weight 0.03 gave 31.06 but lost
+#: 0.18 dB on the INRIA set; routing the relit views' refinement loss to roughness and
+#: specular only (``DEFAULT_RELIT_MAPS``, an option) 30.64 with the photo's diffuse and
+#: normal, 29.47 without. The 21-material rerun of Tables 2 and 4 with these defaults is
+#: ``results/capture_tables``.
+DEFAULT_PHOTO_MAPS: tuple[str, ...] = ("diffuse", "normal")
+DEFAULT_RELIT_WEIGHT = 0.0
+DEFAULT_RELIT_MAPS = MAP_NAMES
 #: Adam rate of the per-pixel logits and normal slopes (``estimator.refine.refine_maps``'s).
 REFINE_LR = 1e-2
 #: Lights of the re-renders (after the flash): the 7 evaluation lights.
@@ -83,6 +97,10 @@ class CaptureConfig:
         relit_robust: None (log-L1 for every view), or the scale of a robust loss for the
             relit views (``matcap.capture.refine._Target``: pixels a generated view gets
             badly wrong stop pulling the maps).
+        relit_maps: the maps the relit views' refinement loss may change (names of
+            ``MAP_NAMES``); the others follow the photo alone.
+        photo_maps: the maps taken from the estimator run on the photo alone rather
+            than on the photo and the relit views (a second, cheap forward pass).
         flatness: weight of the flat-sample prior on the refined normals (0: none;
             ``DEFAULT_FLATNESS``): a photographed sample is flat, so its normal map
             should not tilt at low frequency however bumpy its surface.
@@ -117,6 +135,8 @@ class CaptureConfig:
     photo_weight: float = 1.0
     relit_weight: float = DEFAULT_RELIT_WEIGHT
     relit_robust: float | None = None
+    relit_maps: tuple[str, ...] = DEFAULT_RELIT_MAPS
+    photo_maps: tuple[str, ...] = DEFAULT_PHOTO_MAPS
     flatness: float = DEFAULT_FLATNESS
     falloff: str = DEFAULT_FALLOFF
     fov: float | None = None
@@ -150,6 +170,13 @@ class CaptureConfig:
             math.isfinite(self.flatness) and self.flatness >= 0,
             f"flatness must be a finite number >= 0, got {self.flatness}",
         )
+        for name in ("relit_maps", "photo_maps"):
+            value = getattr(self, name)
+            need(
+                isinstance(value, tuple) and len(set(value)) == len(value) and set(value) <= set(MAP_NAMES),
+                f"{name} must be distinct names of {', '.join(MAP_NAMES)}, got {value!r}",
+            )
+        need(bool(self.relit_maps), "relit_maps cannot be empty (use relit_weight=0 to ignore the relit views)")
         need(self.falloff in FALLOFFS, f"falloff must be one of {', '.join(FALLOFFS)}, got {self.falloff!r}")
         need(self.fov is None or 0 < self.fov < 180, f"field of view must lie in (0, 180) degrees, got {self.fov}")
         if self.camera is not None:

@@ -8,6 +8,7 @@ import os
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import replace
 
 import torch
 import torch.nn.functional as F
@@ -252,6 +253,14 @@ class CapturePipeline:
                     capture.camera_pos[None] * scale,
                     generated=generated,
                 )
+                if k and cfg.photo_maps:  # these maps from the photo alone (a second pass)
+                    alone = self.estimator(
+                        capture.images[None, :1],
+                        capture.light_pos[None, :1] * scale,
+                        capture.camera_pos[None, :1] * scale,
+                        generated=generated[:1],
+                    )
+                    estimate = replace(estimate, **{name: getattr(alone, name) for name in cfg.photo_maps})
 
         # 6. Refinement at the photo's full resolution against the photo and the relit
         #    views (compared at their resolution), padded pixels masked out.
@@ -272,7 +281,8 @@ class CapturePipeline:
                     photo_weight=cfg.photo_weight, relit_weight=cfg.relit_weight, steps=cfg.refine_steps,
                     photo_ceiling=photo_ceiling if cfg.clip_aware else None,
                     relit_ceiling=ceiling if cfg.clip_aware else None, relit_robust=cfg.relit_robust,
-                    flatness=cfg.flatness, lr=cfg.refine_lr, render_kwargs=scene.render_kwargs, progress=progress,
+                    relit_maps=cfg.relit_maps, flatness=cfg.flatness, lr=cfg.refine_lr,
+                    render_kwargs=scene.render_kwargs, progress=progress,
                 )  # fmt: skip
                 refined, history = result.material, result.history
 

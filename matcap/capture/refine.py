@@ -7,6 +7,7 @@ unconstrained parameters, the views rendered per call, and the memory estimate
 from __future__ import annotations
 
 import math
+from collections.abc import Collection
 
 import torch
 import torch.nn.functional as F
@@ -17,7 +18,7 @@ import kernels
 from estimator.model import NORMAL_MIN_Z
 from estimator.refine import DEFAULT_TOL, DEFAULT_WINDOW, LOGIT_EPS, RefineResult, converged
 from kernels.loss import LOG_EPS
-from matcap.capture.config import DEFAULT_REFINE_STEPS, DEFAULT_RELIT_WEIGHT, REFINE_LR
+from matcap.capture.config import DEFAULT_REFINE_STEPS, DEFAULT_RELIT_WEIGHT, MAP_NAMES, REFINE_LR
 from matcap.capture.scene import area_downsample
 from materials.types import Material
 
@@ -185,6 +186,7 @@ def refine_full_resolution(
     photo_ceiling: float | None = None,
     relit_ceiling: torch.Tensor | float | None = None,
     relit_robust: float | None = None,
+    relit_maps: Collection[str] = MAP_NAMES,
     flatness: float = 0.0,
     steps: int = DEFAULT_REFINE_STEPS,
     lr: float = REFINE_LR,
@@ -215,6 +217,9 @@ def refine_full_resolution(
             tensor broadcasting to ``[K, 3, s, s]``.
         relit_robust: None (log-L1), or the scale of the robust loss of the relit views
             (``_Target``): generated views may be wrong in places, the photo is not.
+        relit_maps: the maps the relit views' loss may change (names of
+            ``MAP_NAMES``; default all): the others are fitted to the
+            photo alone, the relit views' renders see them as constants.
         flatness: weight of the flat-sample prior ``flatness * tilt_energy(slopes,
             photo_mask)`` added to the loss (0: none).
         render_kwargs: ``kernels.render`` keywords (preset, falloff, intensity).
@@ -229,6 +234,11 @@ def refine_full_resolution(
         raise ValueError(f"material {material.shape} and photo {tuple(photo.shape)} must be one [.., S, S] image")
     if light_pos.shape != (1 + k, 3):
         raise ValueError(f"light_pos must be [1 + K, 3] = [{1 + k}, 3], got {tuple(light_pos.shape)}")
+    unknown = set(relit_maps) - set(MAP_NAMES)
+    if unknown or not relit_maps:
+        raise ValueError(f"relit_maps must be a non-empty subset of {', '.join(MAP_NAMES)}, got {sorted(relit_maps)}")
+    # Which of the maps (in ``map_tensors`` order) the relit views' gradient reaches; None: all.
+    routed = None if set(relit_maps) == set(MAP_NAMES) else tuple(name in relit_maps for name in MAP_NAMES)
     weights = [photo_weight] + [relit_weight] * k
     total = sum(weights)
     if not total > 0:
@@ -253,15 +263,24 @@ def refine_full_resolution(
             )
         )
 
+    def render(maps: tuple[torch.Tensor, ...], chunk: list[int]) -> torch.Tensor:
+        return kernels.render(*maps, lights[chunk][None], camera, **render_kwargs)[0]  # [n, 3, S, S]
+
     def chunk_loss(maps: tuple[torch.Tensor, ...], step: tuple) -> torch.Tensor:
         chunk, photo_target, relit_target, relit_share = step
-        images = kernels.render(*maps, lights[chunk][None], camera, **render_kwargs)[0]  # [n, 3, S, S]
-        loss = images.new_zeros(())
+        if routed is None:  # one render call for the whole chunk (cheaper than two)
+            images = render(maps, chunk)
+            photo_image, relit_images = images[:1], images[1:] if photo_target is not None else images
+        else:  # the relit views see the maps they may not change as constants
+            fixed = tuple(m if free else m.detach() for m, free in zip(maps, routed))
+            relit_chunk = chunk[1:] if photo_target is not None else chunk
+            photo_image = render(maps, chunk[:1]) if photo_target is not None else None
+            relit_images = render(fixed, relit_chunk) if relit_chunk else None
+        loss = maps[0].new_zeros(())
         if photo_target is not None:
-            loss = loss + photo_target.loss(images[0]) * (photo_weight / total)
-            images = images[1:]
+            loss = loss + photo_target.loss(photo_image[0]) * (photo_weight / total)
         if relit_target is not None:
-            loss = loss + relit_target.loss(area_downsample(images, relit_size)) * relit_share
+            loss = loss + relit_target.loss(area_downsample(relit_images, relit_size)) * relit_share
         return loss
 
     params = _to_parameters(material)
@@ -285,7 +304,10 @@ def refine_full_resolution(
             loss = chunk_loss(leaves, step)
             loss.backward()  # one chunk's graph at a time; the leaves' .grad accumulates
             value += float(loss.detach())
-        torch.autograd.backward(list(maps), [t.grad for t in leaves])
+        # A map no view's loss reached (routed away from the relit views, photo weight 0)
+        # has no gradient to pass on.
+        reached = [(m, t.grad) for m, t in zip(maps, leaves) if t.grad is not None]
+        torch.autograd.backward([m for m, _ in reached], [g for _, g in reached])
         prior = prior_loss()
         if prior is not None:
             prior.backward()
