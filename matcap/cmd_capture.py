@@ -47,8 +47,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--relit-weight",
         type=float,
         default=None,
-        help="refinement weight of each relit view; the photo's is 1 (default 0: the relit views "
-        "inform the estimator, the refinement fits the photo)",
+        help="refinement weight of each relit view; the photo's is 1 (default 0.03: the relit views "
+        "mostly inform the estimator, the refinement mostly fits the photo)",
     )
     p.add_argument(
         "--relit-maps",

@@ -22,8 +22,9 @@ the folder). The steps:
    initialised from the estimator's maps upsampled, fitted through the Warp renderer to
    the full-resolution photo and to the relit views compared at *their* resolution
    (render at full resolution, area-downsample, then the loss), a weight per view (the
-   relit views' default weight is 0: fitting them cost re-render accuracy), optionally
-   routed to some maps only (``relit_maps``), the padded pixels masked out;
+   relit views' default weight is 0.03 against the photo's 1: fitting them harder cost
+   re-render accuracy), optionally routed to some maps only (``relit_maps``), the
+   padded pixels masked out;
 7. the maps mapped back to the photo's pixel grid (``Frame.material_to_photo``);
 8. re-renders under the flash and the 7 evaluation lights, and a preview sheet.
 

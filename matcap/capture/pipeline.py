@@ -253,7 +253,9 @@ class CapturePipeline:
                     capture.camera_pos[None] * scale,
                     generated=generated,
                 )
-                if k and cfg.photo_maps:  # these maps from the photo alone (a second pass)
+                # These maps from the photo alone (a second pass): the relit views are
+                # upsampled from the relit size and blur the detail maps (results/capture_views).
+                if k and cfg.photo_maps:
                     alone = self.estimator(
                         capture.images[None, :1],
                         capture.light_pos[None, :1] * scale,
@@ -262,8 +264,9 @@ class CapturePipeline:
                     )
                     estimate = replace(estimate, **{name: getattr(alone, name) for name in cfg.photo_maps})
 
-        # 6. Refinement at the photo's full resolution against the photo and the relit
-        #    views (compared at their resolution), padded pixels masked out.
+        # 6. Refinement at the photo's full resolution against the photo and, weighted far
+        #    below it, the relit views (compared at their resolution), padded pixels
+        #    masked out.
         with stage("6 refine"):
             init = _upsample(estimate, side)
             # The relighters' outputs are capped at 1 (the tone map's range): their

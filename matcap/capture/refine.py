@@ -217,9 +217,9 @@ def refine_full_resolution(
             tensor broadcasting to ``[K, 3, s, s]``.
         relit_robust: None (log-L1), or the scale of the robust loss of the relit views
             (``_Target``): generated views may be wrong in places, the photo is not.
-        relit_maps: the maps the relit views' loss may change (names of
-            ``MAP_NAMES``; default all): the others are fitted to the
-            photo alone, the relit views' renders see them as constants.
+        relit_maps: the maps the relit views' loss may change (``MAP_NAMES``, default
+            all): the relit views' renders see the others as constants, so those are
+            fitted to the photo alone.
         flatness: weight of the flat-sample prior ``flatness * tilt_energy(slopes,
             photo_mask)`` added to the loss (0: none).
         render_kwargs: ``kernels.render`` keywords (preset, falloff, intensity).
