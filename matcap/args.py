@@ -68,19 +68,21 @@ def positions_or_default(texts: list[str] | None, default: torch.Tensor, what: s
     return torch.tensor([parse_position(t, what) for t in texts], dtype=torch.float32)
 
 
-def parse_map_names(text: str | None, flag: str) -> tuple[str, ...] | None:
-    """``"roughness,specular"`` -> ``("roughness", "specular")``; ``"none"`` -> ``()``; None
-    passes. A name that is not a map is a UsageError naming ``flag``."""
+def parse_map_names(text: str | None, flag: str, allow_none: bool = True) -> tuple[str, ...] | None:
+    """``"roughness,specular"`` -> ``("roughness", "specular")``; ``"none"`` -> ``()`` (if
+    ``allow_none``); None passes. A name that is not a map, a repeated or an empty list is
+    a UsageError naming ``flag``."""
     from materials.types import MAP_CHANNELS
 
     if text is None:
         return None
     names = tuple(v.strip() for v in text.split(",") if v.strip())
-    if names == ("none",):
+    if names == ("none",) and allow_none:
         return ()
     unknown = [n for n in names if n not in MAP_CHANNELS]
-    if unknown or len(set(names)) != len(names):
-        raise UsageError(f"{flag} takes distinct names of {', '.join(MAP_CHANNELS)} (or none), got {text!r}")
+    if not names or unknown or len(set(names)) != len(names):
+        alternative = " (or none)" if allow_none else ""
+        raise UsageError(f"{flag} takes distinct names of {', '.join(MAP_CHANNELS)}{alternative}, got {text!r}")
     return names
 
 

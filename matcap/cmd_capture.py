@@ -162,7 +162,7 @@ def _config(args):
         "refine_steps": args.refine,
         "relit_weight": args.relit_weight,
         "flatness": args.flatness,
-        "relit_maps": parse_map_names(args.relit_maps, "--relit-maps"),
+        "relit_maps": parse_map_names(args.relit_maps, "--relit-maps", allow_none=False),
         "photo_maps": parse_map_names(args.photo_maps, "--photo-maps"),
         "falloff": args.falloff,
         "fov": args.fov,

@@ -222,7 +222,7 @@ def run_capture(args) -> int:
             "estimate_size": args.estimate_size,
             "flatness": args.flatness,
             "relit_weight": args.relit_weight,
-            "relit_maps": parse_map_names(args.relit_maps, "--relit-maps"),
+            "relit_maps": parse_map_names(args.relit_maps, "--relit-maps", allow_none=False),
             "photo_maps": parse_map_names(args.photo_maps, "--photo-maps"),
         }
         capture = CaptureConfig(

@@ -16,8 +16,9 @@ the folder). The steps:
 4. one ``Capture``: the working photo as view 0, the relit views after it;
 5. the estimator on the 1 + K views at the estimate size; the maps named in
    ``CaptureConfig.photo_maps`` (default diffuse and normal) come from a second pass on
-   the photo alone: the relit views are 64 px and upsampled, so they blur and shift the
-   detail maps, while they do tell roughness and specular (``results/capture_views``);
+   the photo alone: the relit views (64 px by default) are upsampled to the estimate
+   size, so they blur the detail maps, while they do tell roughness and specular
+   (``results/capture_views``);
 6. refinement at the photo's full resolution (``refine_full_resolution``): per-pixel maps,
    initialised from the estimator's maps upsampled, fitted through the Warp renderer to
    the full-resolution photo and to the relit views compared at *their* resolution

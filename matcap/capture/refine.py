@@ -268,17 +268,17 @@ def refine_full_resolution(
 
     def chunk_loss(maps: tuple[torch.Tensor, ...], step: tuple) -> torch.Tensor:
         chunk, photo_target, relit_target, relit_share = step
+        n = int(photo_target is not None)  # the photo (view 0) leads its chunk
         if routed is None:  # one render call for the whole chunk (cheaper than two)
             images = render(maps, chunk)
-            photo_image, relit_images = images[:1], images[1:] if photo_target is not None else images
+            photo_images, relit_images = images[:n], images[n:]
         else:  # the relit views see the maps they may not change as constants
             fixed = tuple(m if free else m.detach() for m, free in zip(maps, routed))
-            relit_chunk = chunk[1:] if photo_target is not None else chunk
-            photo_image = render(maps, chunk[:1]) if photo_target is not None else None
-            relit_images = render(fixed, relit_chunk) if relit_chunk else None
+            photo_images = render(maps, chunk[:n]) if n else None
+            relit_images = render(fixed, chunk[n:]) if chunk[n:] else None
         loss = maps[0].new_zeros(())
         if photo_target is not None:
-            loss = loss + photo_target.loss(photo_image[0]) * (photo_weight / total)
+            loss = loss + photo_target.loss(photo_images[0]) * (photo_weight / total)
         if relit_target is not None:
             loss = loss + relit_target.loss(area_downsample(relit_images, relit_size)) * relit_share
         return loss
