@@ -170,7 +170,9 @@ def test_cli_eval_capture_writes_the_report(tmp_path, estimator_folder, capsys):
     data = json.loads((out / "capture_eval.json").read_text())
     capture = data["config"]["capture"]  # the flags reach the pipeline's settings
     assert (capture["photo_maps"], capture["relit_maps"], capture["relit_weight"]) == (
-        ["normal"], ["roughness", "specular"], 0.5
+        ["normal"],
+        ["roughness", "specular"],
+        0.5,
     )
     assert [r["run"] for r in data["rows"]] == ["alone", "gt"]
     assert "Table 2" in (out / "capture_eval.md").read_text()
