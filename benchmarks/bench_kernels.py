@@ -282,6 +282,19 @@ def memory_worker(case: Case, impl: str, device: str) -> dict:
             del out
     with torch.enable_grad() if backward else torch.no_grad():
         _sync(device)
+        if device.startswith("cuda"):
+            # Device memory: every output, saved tensor and gradient of the Warp side is a
+            # torch allocation too (kernels/_autograd.py), so torch's allocator sees all.
+            torch.cuda.reset_peak_memory_stats(device)
+            base = torch.cuda.memory_allocated(device)
+            out = forward()
+            if backward:
+                backward(out)
+            _sync(device)
+            return {
+                "peak_extra_mb": (torch.cuda.max_memory_allocated(device) - base) / 2**20,
+                "peak_method": "torch.cuda.max_memory_allocated (device memory)",
+            }
         base_kb = _rss_kb("VmRSS") or resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
         reset = _reset_peak()
         out = forward()
@@ -533,7 +546,8 @@ def markdown(report: dict) -> str:
     meta = report["meta"]
     peak = meta.get("peak")
     lines = [
-        f"{meta['cpu']}, {meta['cores']} cores (shared); device {meta['device']}; torch {meta['torch']}, "
+        f"{meta['cpu']}, {meta['cores']} cores (shared); device {meta['device']}"
+        f"{' (' + meta['gpu'] + ')' if meta.get('gpu') else ''}; torch {meta['torch']}, "
         f"warp {meta['warp']}; {meta['date']}. Threads per row: torch.set_num_threads and {THREADS_ENV}. "
         f"Median [min-max] of {meta['repeats']} repeats after {meta['warmup']} warm-up, the implementations "
         f"interleaved in one process; load average (1 min) before and after each case in the last column. "
@@ -649,6 +663,7 @@ def main(argv: list[str] | None = None) -> dict:
             "warp": warp.__version__,
             "python": platform.python_version(),
             "cpu": _cpu_name(),
+            "gpu": torch.cuda.get_device_name(args.device) if args.device.startswith("cuda") else None,
             "date": time.strftime("%Y-%m-%d %H:%M:%S"),
             "cores": len(os.sched_getaffinity(0)),
             "loadavg_before": os.getloadavg(),
@@ -695,6 +710,7 @@ def main(argv: list[str] | None = None) -> dict:
             row["speedup_vs_compile"] = row["compile"]["total"]["median"] / row["warp"]["total"]["median"]
         row["loadavg_after"] = os.getloadavg()
         report["cases"].append(row)
+        _write(report, args.out)
     report["meta"]["loadavg_after"] = os.getloadavg()
 
     if not args.no_compile:
@@ -707,14 +723,21 @@ def main(argv: list[str] | None = None) -> dict:
             warm = _spawn(["--compile-worker", json.dumps(modules)], env, thread_counts[-1])
         report["compile"] = {"cold": cold, "warm": warm}
 
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(report, indent=2))
-    table = markdown(report)
-    args.out.with_suffix(".md").write_text(table + "\n")
+    table = _write(report, args.out)
     print()
     print(table)
     print(f"\nwrote {args.out}")
     return report
+
+
+def _write(report: dict, out: Path) -> str:
+    """Write the JSON and its markdown table; return the table. Called after every case
+    too, so that a run cut short (a time limit on a lent GPU) keeps the finished rows."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(report, indent=2))
+    table = markdown(report)
+    out.with_suffix(".md").write_text(table + "\n")
+    return table
 
 
 def _cpu_name() -> str:
