@@ -65,6 +65,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "from the photo and the relit views (default diffuse,normal)",
     )
     p.add_argument(
+        "--shared-step-maps",
+        default=None,
+        metavar="NAMES",
+        help="maps whose refinement step size is shared by all their pixels, comma-separated, or none; "
+        "the others get Adam per pixel (default normal: steps per pixel crease the normals through the flash)",
+    )
+    p.add_argument(
         "--flatness",
         type=float,
         default=None,
@@ -164,6 +171,7 @@ def _config(args):
         "flatness": args.flatness,
         "relit_maps": parse_map_names(args.relit_maps, "--relit-maps", allow_none=False),
         "photo_maps": parse_map_names(args.photo_maps, "--photo-maps"),
+        "shared_step_maps": parse_map_names(args.shared_step_maps, "--shared-step-maps"),
         "falloff": args.falloff,
         "fov": args.fov,
         "camera": parse_position(args.camera, "--camera") if args.camera else None,

@@ -192,6 +192,13 @@ def _add_capture_parser(what) -> None:
         metavar="NAMES",
         help="comma-separated maps the estimator takes from the photo alone ('none': none; default: the pipeline's)",
     )
+    c.add_argument(
+        "--shared-step-maps",
+        default=None,
+        metavar="NAMES",
+        help="comma-separated maps whose refinement step size is shared by their pixels ('none': none; "
+        "default: the pipeline's)",
+    )
     c.add_argument("--estimator", type=Path, default=None, help="estimator folder (default: the shipped one)")
     c.add_argument(
         "--checkpoint",
@@ -224,6 +231,7 @@ def run_capture(args) -> int:
             "relit_weight": args.relit_weight,
             "relit_maps": parse_map_names(args.relit_maps, "--relit-maps", allow_none=False),
             "photo_maps": parse_map_names(args.photo_maps, "--photo-maps"),
+            "shared_step_maps": parse_map_names(args.shared_step_maps, "--shared-step-maps"),
         }
         capture = CaptureConfig(
             samples=args.samples,

@@ -73,6 +73,12 @@ DEFAULT_RELIT_WEIGHT = 0.03
 DEFAULT_RELIT_MAPS = MAP_NAMES
 #: Adam rate of the per-pixel logits and normal slopes (``estimator.refine.refine_maps``'s).
 REFINE_LR = 1e-2
+#: Maps whose refinement step size is shared by all their pixels
+#: (``estimator.optim.MapAdam``): each pixel steps in proportion to its gradient. With
+#: per-pixel Adam every pixel steps by about the rate in the sign of its gradient, which
+#: turned the smooth radial pull of a flash highlight the model cannot reproduce into
+#: sharp creases in the normal map along the axes through the flash point (real photos).
+DEFAULT_SHARED_STEP_MAPS: tuple[str, ...] = ("normal",)
 #: Lights of the re-renders (after the flash): the 7 evaluation lights.
 RENDER_LIGHTS = EVAL_LIGHTS
 #: The file that marks a folder written by ``CaptureOutput.save`` (safe to --overwrite).
@@ -103,6 +109,8 @@ class CaptureConfig:
             ``MAP_NAMES``); the others follow the photo alone.
         photo_maps: the maps taken from the estimator run on the photo alone rather
             than on the photo and the relit views (a second, cheap forward pass).
+        shared_step_maps: the maps whose refinement step size is shared by all their
+            pixels (``DEFAULT_SHARED_STEP_MAPS``); the others get per-pixel Adam.
         flatness: weight of the flat-sample prior on the refined normals (0: none;
             ``DEFAULT_FLATNESS``): a photographed sample is flat, so its normal map
             should not tilt at low frequency however bumpy its surface.
@@ -139,6 +147,7 @@ class CaptureConfig:
     relit_robust: float | None = None
     relit_maps: tuple[str, ...] = DEFAULT_RELIT_MAPS
     photo_maps: tuple[str, ...] = DEFAULT_PHOTO_MAPS
+    shared_step_maps: tuple[str, ...] = DEFAULT_SHARED_STEP_MAPS
     flatness: float = DEFAULT_FLATNESS
     falloff: str = DEFAULT_FALLOFF
     fov: float | None = None
@@ -172,7 +181,7 @@ class CaptureConfig:
             math.isfinite(self.flatness) and self.flatness >= 0,
             f"flatness must be a finite number >= 0, got {self.flatness}",
         )
-        for name in ("relit_maps", "photo_maps"):
+        for name in ("relit_maps", "photo_maps", "shared_step_maps"):
             value = getattr(self, name)
             need(
                 isinstance(value, tuple) and len(set(value)) == len(value) and set(value) <= set(MAP_NAMES),

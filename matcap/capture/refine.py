@@ -16,9 +16,16 @@ from tqdm.auto import tqdm
 
 import kernels
 from estimator.model import NORMAL_MIN_Z
+from estimator.optim import MapAdam
 from estimator.refine import DEFAULT_TOL, DEFAULT_WINDOW, LOGIT_EPS, RefineResult, converged
 from kernels.loss import LOG_EPS
-from matcap.capture.config import DEFAULT_REFINE_STEPS, DEFAULT_RELIT_WEIGHT, MAP_NAMES, REFINE_LR
+from matcap.capture.config import (
+    DEFAULT_REFINE_STEPS,
+    DEFAULT_RELIT_WEIGHT,
+    DEFAULT_SHARED_STEP_MAPS,
+    MAP_NAMES,
+    REFINE_LR,
+)
 from matcap.capture.scene import area_downsample
 from materials.types import Material
 
@@ -187,6 +194,7 @@ def refine_full_resolution(
     relit_ceiling: torch.Tensor | float | None = None,
     relit_robust: float | None = None,
     relit_maps: Collection[str] = MAP_NAMES,
+    shared_step_maps: Collection[str] = DEFAULT_SHARED_STEP_MAPS,
     flatness: float = 0.0,
     steps: int = DEFAULT_REFINE_STEPS,
     lr: float = REFINE_LR,
@@ -205,7 +213,9 @@ def refine_full_resolution(
     ``relit[k - 1]``. ``w_0 = photo_weight``, ``w_k = relit_weight``. The views are
     rendered and back-propagated one at a time (the maps' gradient accumulates), so the
     memory does not grow with K (``refine_memory_bytes``). Adam on the parameters of
-    ``estimator.refine.refine_maps``; early stop and best-of as in ``estimator.refine``.
+    ``estimator.refine.refine_maps``, per pixel or with a step size shared by a map's
+    pixels (``shared_step_maps``, ``estimator.optim.MapAdam``); early stop and best-of as
+    in ``estimator.refine``.
 
     Args:
         material: initial maps ``[1, C, S, S]`` (e.g. the estimator's, upsampled).
@@ -220,6 +230,9 @@ def refine_full_resolution(
         relit_maps: the maps the relit views' loss may change (``MAP_NAMES``, default
             all): the relit views' renders see the others as constants, so those are
             fitted to the photo alone.
+        shared_step_maps: the maps (``MAP_NAMES``) whose Adam step size is shared by all
+            their pixels, so that each pixel steps in proportion to its gradient; the
+            others get per-pixel Adam (``torch.optim.Adam``'s update).
         flatness: weight of the flat-sample prior ``flatness * tilt_energy(slopes,
             photo_mask)`` added to the loss (0: none).
         render_kwargs: ``kernels.render`` keywords (preset, falloff, intensity).
@@ -237,6 +250,9 @@ def refine_full_resolution(
     unknown = set(relit_maps) - set(MAP_NAMES)
     if unknown or not relit_maps:
         raise ValueError(f"relit_maps must be a non-empty subset of {', '.join(MAP_NAMES)}, got {sorted(relit_maps)}")
+    unknown = set(shared_step_maps) - set(MAP_NAMES)
+    if unknown:
+        raise ValueError(f"shared_step_maps must be names of {', '.join(MAP_NAMES)}, got {sorted(shared_step_maps)}")
     # Which of the maps (in ``map_tensors`` order) the relit views' gradient reaches; None: all.
     routed = None if set(relit_maps) == set(MAP_NAMES) else tuple(name in relit_maps for name in MAP_NAMES)
     weights = [photo_weight] + [relit_weight] * k
@@ -291,8 +307,11 @@ def refine_full_resolution(
     def prior_loss() -> torch.Tensor | None:
         return flatness * tilt_energy(params[1], flat_mask) if flatness > 0 else None
 
-    # fused: one kernel for the whole update (the per-tensor loop cost ~10% of a step).
-    opt = torch.optim.Adam(params, lr=lr, fused=True)
+    if shared_step_maps:
+        groups = [{"params": [p], "shared": name in shared_step_maps} for p, name in zip(params, MAP_NAMES)]
+        opt: torch.optim.Optimizer = MapAdam(groups, lr=lr)
+    else:  # fused: one kernel for the whole update (the per-tensor loop cost ~10% of a step)
+        opt = torch.optim.Adam(params, lr=lr, fused=True)
     history: list[float] = []
     best, best_loss = [p.detach().clone() for p in params], float("inf")
 

@@ -1,0 +1,84 @@
+"""``estimator.optim.MapAdam``: per-element groups are torch's Adam; shared groups step in
+proportion to the gradient (no sign field, the cause of the refinement's creases)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from estimator.optim import MapAdam
+
+#: Per-element MapAdam and torch.optim.Adam (single-tensor path) do the same float64
+#: operations in the same order; a few units of roundoff (2.2e-16) per step at most.
+SAME_OPS_RTOL = 1e-13
+
+
+def _quadratic_grads(p: torch.Tensor, target: torch.Tensor) -> None:
+    p.grad = None
+    ((p - target) ** 2 * torch.linspace(0.1, 3.0, p.numel(), dtype=p.dtype).view_as(p)).sum().backward()
+
+
+def test_per_element_group_is_torch_adam():
+    g = torch.Generator().manual_seed(0)
+    start = torch.randn(1, 3, 8, 8, generator=g, dtype=torch.float64)
+    target = torch.randn(1, 3, 8, 8, generator=g, dtype=torch.float64)
+    ours = start.clone().requires_grad_(True)
+    theirs = start.clone().requires_grad_(True)
+    opt_ours = MapAdam([ours], lr=0.05, shared=False)
+    opt_theirs = torch.optim.Adam([theirs], lr=0.05, foreach=False)
+    for _ in range(10):
+        _quadratic_grads(ours, target)
+        _quadratic_grads(theirs, target)
+        opt_ours.step()
+        opt_theirs.step()
+    assert not torch.equal(ours, start)
+    torch.testing.assert_close(ours, theirs, rtol=SAME_OPS_RTOL, atol=0)
+
+
+def test_shared_step_is_proportional_to_the_gradient():
+    """A smooth ramp of gradient (x across the map, a radial field's x component): stock
+    Adam's first step is lr * sign(x), a step function with a jump at x = 0 (the crease);
+    the shared step is -lr * g / rms(g) per channel, the ramp itself."""
+    lr = 0.01
+    x = torch.linspace(-1, 1, 16, dtype=torch.float64)
+    grad = torch.stack([x.expand(16, 16), 3 * x[:, None].expand(16, 16)])[None]  # [1, 2, 16, 16]
+    steps = {}
+    for shared in (False, True):
+        p = torch.zeros(1, 2, 16, 16, dtype=torch.float64, requires_grad=True)
+        opt = MapAdam([p], lr=lr, shared=shared)
+        p.grad = grad.clone()
+        opt.step()
+        steps[shared] = p.detach()
+    rms = grad.square().mean(dim=(-2, -1), keepdim=True).sqrt()
+    torch.testing.assert_close(steps[True], -lr * grad / (rms + 1e-8), rtol=SAME_OPS_RTOL, atol=0)
+    # Stock Adam: every pixel steps by lr, in the sign of its gradient (up to eps).
+    torch.testing.assert_close(steps[False].abs(), torch.full_like(grad, lr), rtol=1e-6, atol=0)
+    # The jump between the two middle columns: the whole 2 lr for stock Adam, one ramp
+    # increment (2 / 15 of the ramp's unit) scaled by lr / rms for the shared step.
+    jump = {s: float((steps[s][0, 0, :, 8] - steps[s][0, 0, :, 7]).abs().max()) for s in steps}
+    assert jump[False] == pytest.approx(2 * lr, rel=1e-6)
+    assert jump[True] < 0.25 * lr
+
+
+def test_shared_groups_and_per_element_groups_mix():
+    a = torch.zeros(1, 1, 4, 4, requires_grad=True)
+    b = torch.zeros(1, 1, 4, 4, requires_grad=True)
+    opt = MapAdam([{"params": [a], "shared": True}, {"params": [b], "shared": False}], lr=0.1)
+    grad = torch.arange(16.0).view(1, 1, 4, 4) + 1
+    a.grad, b.grad = grad.clone(), grad.clone()
+    opt.step()
+    assert opt.state[a]["exp_avg_sq"].shape == (1, 1, 1, 1)
+    assert opt.state[b]["exp_avg_sq"].shape == (1, 1, 4, 4)
+    assert float(a.detach().abs().max() - a.detach().abs().min()) > 0.05  # follows the gradient
+    torch.testing.assert_close(b.detach(), torch.full_like(b, -0.1), rtol=1e-5, atol=0)  # sign steps
+
+
+@pytest.mark.parametrize("bad", [dict(lr=0.0), dict(betas=(1.0, 0.999))])
+def test_bad_settings_are_refused(bad):
+    with pytest.raises(ValueError):
+        MapAdam([torch.zeros(1, 1, 2, 2, requires_grad=True)], **bad)
+
+
+def test_shared_group_needs_maps():
+    with pytest.raises(ValueError, match="maps"):
+        MapAdam([torch.zeros(4, requires_grad=True)], shared=True)
