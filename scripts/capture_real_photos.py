@@ -63,6 +63,32 @@ def low_tilt_deg(normal: torch.Tensor) -> float:
     return math.degrees(math.atan(math.sqrt(float(tilt_energy(slope[..., :side, :side])))))
 
 
+def crease_deg(normal: torch.Tensor, frame, camera: torch.Tensor) -> tuple[float, float]:
+    """The refinement's creases through the flash point, as angles (degrees).
+
+    ``normal [3, H, W]`` (photo grid). Per column ``c``, the change of the x slope
+    ``n_x / n_z`` across the 3 columns around ``c``, averaged along the column (signed, so
+    texture cancels and a crease, one sign along its whole length, stays). The same is
+    done per row with the y slope. Returns the mean of the two at the point under the
+    camera, and the median of the same over every other column and row (the texture's
+    level): a crease stands far above the second number.
+    """
+    n = normal.float()
+    slope = n[:2] / n[2:3].clamp_min(1e-3)
+    h, w = slope.shape[-2:]
+    rows, cols = torch.meshgrid(
+        torch.arange(h, dtype=torch.float32), torch.arange(w, dtype=torch.float32), indexing="ij"
+    )
+    x, y = frame.pixel_to_plane(rows, cols)
+    col = int((x[h // 2] - camera[0]).abs().argmin())
+    row = int((y[:, w // 2] - camera[1]).abs().argmin())
+    across_cols = (slope[0, :, 3:] - slope[0, :, :-3]).mean(0).abs()  # at columns 1.5 ... w - 1.5
+    across_rows = (slope[1, 3:, :] - slope[1, :-3, :]).mean(1).abs()
+    at = (float(across_cols[col - 2]) + float(across_rows[row - 2])) / 2
+    rest = torch.cat([across_cols[: col - 4], across_cols[col:], across_rows[: row - 4], across_rows[row:]])
+    return math.degrees(math.atan(at)), math.degrees(math.atan(float(rest.median())))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("photos", nargs="+", type=Path)
@@ -74,10 +100,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--flatness", type=float, default=None, help="refinement flatness weight (default: the pipeline's)"
     )
+    parser.add_argument(
+        "--shared-step-maps",
+        default=None,
+        help="maps whose refinement step is shared by their pixels, comma-separated or none (default: the pipeline's)",
+    )
     args = parser.parse_args(argv)
 
     import kernels
     from kernels.tonemap import srgb_encode
+    from matcap.args import parse_map_names
     from matcap.capture import CapturePipeline
     from matcap.outputs import contact_sheet
     from materials.io import read_photo, write_png
@@ -87,6 +119,10 @@ def main(argv: list[str] | None = None) -> int:
     pipeline = CapturePipeline.from_pretrained(estimator=args.estimator)
     if args.flatness is not None:
         pipeline.config = replace(pipeline.config, flatness=args.flatness)
+    if args.shared_step_maps is not None:
+        pipeline.config = replace(
+            pipeline.config, shared_step_maps=parse_map_names(args.shared_step_maps, "--shared-step-maps")
+        )
     rows, records = [], []
     side_light = torch.tensor([[3.0, 1.0, 4.0]])
 
@@ -115,7 +151,13 @@ def main(argv: list[str] | None = None) -> int:
             "highlight_ratio_photo": round(highlight_ratio(photo.image, with_relit.frame, camera), 3),
             "tilt_deg_alone": round(low_tilt_deg(alone.material.normal), 2),
             "tilt_deg_relit": round(low_tilt_deg(with_relit.material.normal), 2),
+            **{
+                f"crease_deg_{run}{part}": round(v, 2)
+                for run, out in (("alone", alone), ("relit", with_relit))
+                for part, v in zip(("", "_elsewhere"), crease_deg(out.material.normal, out.frame, camera))
+            },
             "flatness": pipeline.config.flatness,
+            "shared_step_maps": list(pipeline.config.shared_step_maps),
         }
         records.append(record)
         print(json.dumps(record), file=sys.stderr, flush=True)
@@ -142,12 +184,16 @@ def main(argv: list[str] | None = None) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     write_png(args.out, chw_to_hwc(contact_sheet(torch.cat(rows), columns=rows[0].shape[0])))
     (args.out.parent / "capture_real_photos.json").write_text(json.dumps(records, indent=2) + "\n")
-    print("| photo | size | s (7 relit) | diffuse disc/ring, photo alone | with 7 relit | photo itself |")
-    print("|---|---|---|---|---|---|")
+    print(
+        "| photo | size | s (7 relit) | diffuse disc/ring, photo alone | with 7 relit | photo itself "
+        "| crease deg, alone | with 7 relit | elsewhere |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|")
     for r in records:
         print(
             f"| {r['photo']} | {r['size'][1]}x{r['size'][0]} | {r['seconds']} | {r['highlight_ratio_alone']} | "
-            f"{r['highlight_ratio_relit']} | {r['highlight_ratio_photo']} |"
+            f"{r['highlight_ratio_relit']} | {r['highlight_ratio_photo']} | {r['crease_deg_alone']} | "
+            f"{r['crease_deg_relit']} | {r['crease_deg_relit_elsewhere']} |"
         )
     return 0
 
