@@ -555,6 +555,11 @@ def markdown(report: dict) -> str:
         "in brackets by process CPU time (all threads; on a loaded machine the wall clock also counts "
         "waiting for a core).",
     ]
+    if str(meta["device"]).startswith("cuda"):
+        lines[0] += (
+            " On CUDA, 'peak extra MB' is device memory (torch.cuda.max_memory_allocated over one step) and "
+            "'CPU ms' the host process's time."
+        )
     if peak:
         lim = render_limit(peak, report["cases"][0]["case"]["k"])
         lines += [
@@ -734,9 +739,12 @@ def _write(report: dict, out: Path) -> str:
     """Write the JSON and its markdown table; return the table. Called after every case
     too, so that a run cut short (a time limit on a lent GPU) keeps the finished rows."""
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(report, indent=2))
     table = markdown(report)
-    out.with_suffix(".md").write_text(table + "\n")
+    # Through a temporary file: a run killed mid-write keeps the previous complete file.
+    for path, text in ((out, json.dumps(report, indent=2)), (out.with_suffix(".md"), table + "\n")):
+        tmp = path.with_name(f".{path.name}.tmp")
+        tmp.write_text(text)
+        os.replace(tmp, path)
     return table
 
 

@@ -11,6 +11,7 @@
 # run from the repository root. Each step's log goes to OUT_DIR; a failing step does not
 # stop the later ones (the exit code is the number of failed steps).
 set -u
+set -o pipefail
 out=${1:?usage: bash benchmarks/cuda_check.sh OUT_DIR}
 py=${PYTHON:-python3}
 mkdir -p "$out"
@@ -32,7 +33,6 @@ EOF
 
 echo "== kernel tests, CUDA cases"
 # -k cuda: the CPU cases already run in CI; these are the same tests with device="cuda".
-set -o pipefail
 timeout 200 "$py" -m pytest tests/kernels -q -k cuda -p no:cacheprovider -o addopts="--import-mode=importlib" \
     2>&1 | tee "$out/tests_cuda.log" | tail -40 || failed=$((failed + 1))
 

@@ -15,7 +15,14 @@ gradient over the map), a pixel's step is proportional to its gradient. The step
 the gradient's spatial shape, smooth where it is smooth, and pixels with little evidence
 move little. Adam's per-parameter scale invariance is kept per channel, so the same
 learning rate still serves maps of any resolution (a mean loss's per-pixel gradient
-shrinks with the pixel count).
+shrinks with the pixel count): ``lr`` is then the root-mean-square step over the
+channel's pixels, not every pixel's step.
+
+Two guards come with the shared moment:
+- a ``mask`` of the pixels that count, so that pixels no loss can reach (a photo's
+  padding) do not dilute the mean and inflate the real pixels' steps;
+- ``max_step``, a cap on any element's step in units of ``lr``. One pixel holding most
+  of a channel's gradient would otherwise step by up to ``lr * sqrt(H * W)``.
 """
 
 from __future__ import annotations
@@ -31,14 +38,17 @@ class MapAdam(torch.optim.Optimizer):
     """Adam (Kingma and Ba 2015, bias-corrected, no weight decay) over per-pixel maps.
 
     Parameters are tensors ``[..., C, H, W]``. In a param group with ``shared=True``, the
-    second moment has shape ``[..., C, 1, 1]``: per channel, the pixels' mean squared
-    gradient. In a group with ``shared=False``, it is per element, which is
-    ``torch.optim.Adam``'s update (the tests hold it to that).
+    second moment has shape ``[..., C, 1, 1]``: per channel, the mean squared gradient
+    over the pixels where ``mask`` is True. In a group with ``shared=False``, it is per
+    element, which is ``torch.optim.Adam``'s update (the tests hold it to that).
 
     Args:
-        params: tensors, or param-group dicts (each may set ``shared``).
+        params: tensors, or param-group dicts (each may set ``shared``, ``mask``,
+            ``max_step``).
         lr, betas, eps: as ``torch.optim.Adam``.
         shared: the default for groups that do not set it.
+        mask: ``[H, W]`` bool, the pixels the shared mean runs over (None: all).
+        max_step: cap on any element's step, in units of ``lr`` (None: no cap).
     """
 
     def __init__(
@@ -48,17 +58,38 @@ class MapAdam(torch.optim.Optimizer):
         betas: tuple[float, float] = (0.9, 0.999),
         eps: float = 1e-8,
         shared: bool = True,
+        mask: torch.Tensor | None = None,
+        max_step: float | None = None,
     ):
         if not lr > 0:
             raise ValueError(f"lr must be positive, got {lr}")
         if not (0 <= betas[0] < 1 and 0 <= betas[1] < 1):
             raise ValueError(f"betas must be in [0, 1), got {betas}")
-        super().__init__(params, dict(lr=lr, betas=betas, eps=eps, shared=shared))
-        for group in self.param_groups:
-            if group["shared"]:
-                for p in group["params"]:
-                    if p.dim() < 3:
-                        raise ValueError(f"shared groups hold [..., C, H, W] maps, got shape {tuple(p.shape)}")
+        if not eps >= 0:
+            raise ValueError(f"eps must be >= 0, got {eps}")
+        defaults = dict(lr=lr, betas=betas, eps=eps, shared=shared, mask=mask, max_step=max_step)
+        super().__init__(params, defaults)
+
+    def add_param_group(self, param_group: dict) -> None:
+        """torch's, plus the checks of ``shared``, ``mask`` and ``max_step``; a mask is
+        stored as float weights normalised to sum to 1 (the shared mean's weights)."""
+        super().add_param_group(param_group)
+        group = self.param_groups[-1]
+        if group["max_step"] is not None and not group["max_step"] > 0:
+            raise ValueError(f"max_step must be positive, got {group['max_step']}")
+        mask = group["mask"]
+        if mask is not None and not group["shared"]:
+            raise ValueError("mask applies to shared groups only")
+        for p in group["params"]:
+            if group["shared"] and p.dim() < 3:
+                raise ValueError(f"shared groups hold [..., C, H, W] maps, got shape {tuple(p.shape)}")
+            if mask is not None and tuple(mask.shape) != tuple(p.shape[-2:]):
+                raise ValueError(f"mask must be [H, W] = {tuple(p.shape[-2:])}, got {tuple(mask.shape)}")
+        if mask is not None:
+            if not bool(mask.any()):
+                raise ValueError("mask selects no pixel")
+            weights = mask.to(group["params"][0].dtype)
+            group["mask"] = weights / weights.sum()
 
     @torch.no_grad()
     def step(self, closure=None):  # type: ignore[override]
@@ -84,9 +115,17 @@ class MapAdam(torch.optim.Optimizer):
                 state["exp_avg"].lerp_(grad, 1 - beta1)
                 square = grad.square()
                 if group["shared"]:
-                    square = square.mean(dim=(-2, -1), keepdim=True)
+                    weights = group["mask"]
+                    if weights is None:
+                        square = square.mean(dim=(-2, -1), keepdim=True)
+                    else:
+                        square = (square * weights).sum(dim=(-2, -1), keepdim=True)
                 state["exp_avg_sq"].mul_(beta2).add_(square, alpha=1 - beta2)
                 # torch's Adam: p -= lr / (1 - b1^t) * m / (sqrt(v) / sqrt(1 - b2^t) + eps)
                 denom = (state["exp_avg_sq"].sqrt() / (1 - beta2**t) ** 0.5).add_(group["eps"])
-                p.addcdiv_(state["exp_avg"], denom, value=-group["lr"] / (1 - beta1**t))
+                if group["max_step"] is None:
+                    p.addcdiv_(state["exp_avg"], denom, value=-group["lr"] / (1 - beta1**t))
+                else:
+                    step = (state["exp_avg"] / denom).mul_(1 / (1 - beta1**t))
+                    p.sub_(step.clamp_(-group["max_step"], group["max_step"]), alpha=group["lr"])
         return loss

@@ -66,26 +66,27 @@ def low_tilt_deg(normal: torch.Tensor) -> float:
 def crease_deg(normal: torch.Tensor, frame, camera: torch.Tensor) -> tuple[float, float]:
     """The refinement's creases through the flash point, as angles (degrees).
 
-    ``normal [3, H, W]`` (photo grid). Per column ``c``, the change of the x slope
-    ``n_x / n_z`` across the 3 columns around ``c``, averaged along the column (signed, so
-    texture cancels and a crease, one sign along its whole length, stays). The same is
-    done per row with the y slope. Returns the mean of the two at the point under the
-    camera, and the median of the same over every other column and row (the texture's
-    level): a crease stands far above the second number.
+    ``normal [3, H, W]`` (photo grid). Per window of 4 columns, the change of the x slope
+    ``n_x / n_z`` from its first column to its last, averaged along the window's rows
+    (signed, so texture cancels and a crease, one sign along its whole length, stays).
+    The same is done per window of 4 rows with the y slope. Returns the mean of the two
+    for the windows centred on the point under the camera, and the median over the
+    windows that do not overlap those (the texture's level): a crease stands far above
+    the second number. NaN where the point is less than 2 pixels from the border.
     """
     n = normal.float()
     slope = n[:2] / n[2:3].clamp_min(1e-3)
-    h, w = slope.shape[-2:]
-    rows, cols = torch.meshgrid(
-        torch.arange(h, dtype=torch.float32), torch.arange(w, dtype=torch.float32), indexing="ij"
-    )
-    x, y = frame.pixel_to_plane(rows, cols)
-    col = int((x[h // 2] - camera[0]).abs().argmin())
-    row = int((y[:, w // 2] - camera[1]).abs().argmin())
-    across_cols = (slope[0, :, 3:] - slope[0, :, :-3]).mean(0).abs()  # at columns 1.5 ... w - 1.5
+    row, col = (float(v) for v in frame.plane_to_pixel(camera[0], camera[1]))
+    # Window j spans columns j .. j + 3, centred at j + 1.5.
+    across_cols = (slope[0, :, 3:] - slope[0, :, :-3]).mean(0).abs()
     across_rows = (slope[1, 3:, :] - slope[1, :-3, :]).mean(1).abs()
-    at = (float(across_cols[col - 2]) + float(across_rows[row - 2])) / 2
-    rest = torch.cat([across_cols[: col - 4], across_cols[col:], across_rows[: row - 4], across_rows[row:]])
+    j, i = round(col - 1.5), round(row - 1.5)
+    if not (0 <= j < len(across_cols) and 0 <= i < len(across_rows)):
+        return math.nan, math.nan
+    at = (float(across_cols[j]) + float(across_rows[i])) / 2
+    rest = torch.cat(
+        [across_cols[: max(j - 3, 0)], across_cols[j + 4 :], across_rows[: max(i - 3, 0)], across_rows[i + 4 :]]
+    )
     return math.degrees(math.atan(at)), math.degrees(math.atan(float(rest.median())))
 
 
@@ -105,7 +106,16 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="maps whose refinement step is shared by their pixels, comma-separated or none (default: the pipeline's)",
     )
+    parser.add_argument(
+        "--measure-only",
+        action="store_true",
+        help="no capture and no picture: measure the folders an earlier run left in --work again",
+    )
     args = parser.parse_args(argv)
+    if args.measure_only:
+        records = [remeasure(path, args.work) for path in args.photos]
+        _write_records(records, args.out)
+        return 0
 
     import kernels
     from kernels.tonemap import srgb_encode
@@ -142,20 +152,12 @@ def main(argv: list[str] | None = None) -> int:
         with_relit.save(args.work / name, overwrite=True)
         alone.save(args.work / f"{name}_alone", overwrite=True)
         camera = with_relit.scene.camera_pos
+        runs = {"alone": (alone.material, alone.frame), "relit": (with_relit.material, with_relit.frame)}
         record = {
             "photo": f"{path.parent.name}/{path.name}",
             "size": list(photo.size),
             "seconds": round(seconds, 1),
-            "highlight_ratio_alone": round(highlight_ratio(alone.material.diffuse, alone.frame, camera), 3),
-            "highlight_ratio_relit": round(highlight_ratio(with_relit.material.diffuse, with_relit.frame, camera), 3),
-            "highlight_ratio_photo": round(highlight_ratio(photo.image, with_relit.frame, camera), 3),
-            "tilt_deg_alone": round(low_tilt_deg(alone.material.normal), 2),
-            "tilt_deg_relit": round(low_tilt_deg(with_relit.material.normal), 2),
-            **{
-                f"crease_deg_{run}{part}": round(v, 2)
-                for run, out in (("alone", alone), ("relit", with_relit))
-                for part, v in zip(("", "_elsewhere"), crease_deg(out.material.normal, out.frame, camera))
-            },
+            **measure(photo.image, runs, camera),
             "flatness": pipeline.config.flatness,
             "shared_step_maps": list(pipeline.config.shared_step_maps),
         }
@@ -183,10 +185,60 @@ def main(argv: list[str] | None = None) -> int:
             )
     args.out.parent.mkdir(parents=True, exist_ok=True)
     write_png(args.out, chw_to_hwc(contact_sheet(torch.cat(rows), columns=rows[0].shape[0])))
-    (args.out.parent / "capture_real_photos.json").write_text(json.dumps(records, indent=2) + "\n")
+    _write_records(records, args.out)
+    return 0
+
+
+def measure(photo: torch.Tensor, runs: dict, camera: torch.Tensor) -> dict:
+    """The checks of one photo: ``photo [3, H, W]`` linear; ``runs`` maps "alone" and
+    "relit" to ``(Material with maps [C, H, W] on the photo grid, Frame)``."""
+    record = {
+        "highlight_ratio_alone": round(highlight_ratio(runs["alone"][0].diffuse, runs["alone"][1], camera), 3),
+        "highlight_ratio_relit": round(highlight_ratio(runs["relit"][0].diffuse, runs["relit"][1], camera), 3),
+        "highlight_ratio_photo": round(highlight_ratio(photo, runs["relit"][1], camera), 3),
+        "tilt_deg_alone": round(low_tilt_deg(runs["alone"][0].normal), 2),
+        "tilt_deg_relit": round(low_tilt_deg(runs["relit"][0].normal), 2),
+    }
+    for run, (material, frame) in runs.items():
+        at, elsewhere = crease_deg(material.normal, frame, camera)
+        record[f"crease_deg_{run}"], record[f"crease_deg_{run}_elsewhere"] = round(at, 2), round(elsewhere, 2)
+    return record
+
+
+def remeasure(path: Path, work: Path) -> dict:
+    """``measure`` on the folders an earlier run wrote for ``path`` under ``work``."""
+    from materials.frame import Frame
+    from materials.io import read_exr, read_photo
+    from materials.types import Material
+
+    def chw(file: Path) -> torch.Tensor:
+        return torch.from_numpy(read_exr(file)).permute(2, 0, 1).float()
+
+    runs, prov = {}, {}
+    for run, folder in (("alone", work / f"{path.stem}_alone"), ("relit", work / path.stem)):
+        prov[run] = json.loads((folder / "provenance.json").read_text())
+        maps = {
+            name: chw(folder / "material" / f"{name}.exr") for name in ("diffuse", "normal", "roughness", "specular")
+        }
+        runs[run] = (Material(**maps), Frame.from_dict(prov[run]["frame"]))
+    settings = prov["relit"]["settings"]
+    return {
+        "photo": f"{path.parent.name}/{path.name}",
+        "size": list(read_photo(path).size),
+        "seconds": None,  # not timed again
+        **measure(read_photo(path).image, runs, torch.tensor(prov["relit"]["scene"]["camera_pos"])),
+        "flatness": settings["flatness"],
+        "shared_step_maps": settings.get("shared_step_maps", []),
+    }
+
+
+def _write_records(records: list[dict], out: Path) -> None:
+    """``capture_real_photos.json`` next to ``out``, and a table on stdout."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    (out.parent / "capture_real_photos.json").write_text(json.dumps(records, indent=2) + "\n")
     print(
         "| photo | size | s (7 relit) | diffuse disc/ring, photo alone | with 7 relit | photo itself "
-        "| crease deg, alone | with 7 relit | elsewhere |"
+        "| crease deg, alone | with 7 relit | elsewhere, with 7 relit |"
     )
     print("|---|---|---|---|---|---|---|---|---|")
     for r in records:
@@ -195,7 +247,6 @@ def main(argv: list[str] | None = None) -> int:
             f"{r['highlight_ratio_relit']} | {r['highlight_ratio_photo']} | {r['crease_deg_alone']} | "
             f"{r['crease_deg_relit']} | {r['crease_deg_relit_elsewhere']} |"
         )
-    return 0
 
 
 if __name__ == "__main__":

@@ -512,9 +512,10 @@ def capture_argv(photo, out, estimator_folder, *extra):
 def test_cli_capture_then_estimate_round_trip(tmp_path, estimator_folder, capsys):
     out = tmp_path / "cap"
     args = capture_argv("builtin:tiles", out, estimator_folder, "--relighter", "lambertian", "--relit", "3")
-    assert main([*args, "--falloff", "none", "--estimate-size", "64"]) == 0
+    assert main([*args, "--falloff", "none", "--estimate-size", "64", "--shared-step-maps", "normal,roughness"]) == 0
     assert "capture" in capsys.readouterr().err  # the progress bar
     prov = json.loads((out / PROVENANCE_JSON).read_text())
+    assert prov["settings"]["shared_step_maps"] == ["normal", "roughness"]  # the flag reaches the pipeline
     capture = read_capture(out / "capture")
     assert capture.num_views == 4 and capture.shape == (64, 64)
     assert torch.allclose(capture.light_pos[1:], torch.tensor(EVAL_LIGHTS[:3]))
@@ -612,6 +613,7 @@ def test_cli_bad_photo_is_one_error_line_and_nothing_written(tmp_path, estimator
         (["--flatness", "-1"], "--flatness must be a number >= 0"),
         (["--relit-maps", "albedo"], "--relit-maps takes distinct names of diffuse, normal"),
         (["--photo-maps", "normal,normal"], "--photo-maps takes distinct names"),
+        (["--shared-step-maps", "slope"], "--shared-step-maps takes distinct names"),
         (["--relit-maps", "none"], "--relit-maps takes distinct names of diffuse, normal, roughness, specular, got"),
     ],
 )

@@ -63,9 +63,10 @@ MAP_NAMES = tuple(MAP_CHANNELS)
 #: 31.06, and at 0 (the relit views inform the estimator's roughness and specular only)
 #: 31.02. On 21 materials (``results/capture_tables``) 0.03 against 0 gave +0.04 / +0.21
 #: / +0.03 dB with 8 inputs and -0.14 / +0.12 / +0.02 with 4 (noise-level either way);
-#: 0.03 is kept because on real photos the relit views' small weight holds back the
-#: refinement's creases in the normal map along the axes through the flash point (a
-#: photo-only fit makes them; README "Capture a material"). Routing the relit views'
+#: 0.03 was kept because on real photos the relit views' small weight held back the
+#: refinement's creases in the normal map along the axes through the flash point (their
+#: cause, per-pixel Adam steps, has since been removed: ``DEFAULT_SHARED_STEP_MAPS``,
+#: 31.06 -> 31.44 dB on the 13 materials, ``results/capture_steps``). Routing the relit views'
 #: refinement loss to roughness and specular only (``DEFAULT_RELIT_MAPS``, an option)
 #: gave 30.64 with the photo's diffuse and normal, 29.47 without.
 DEFAULT_PHOTO_MAPS: tuple[str, ...] = ("diffuse", "normal")

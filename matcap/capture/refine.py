@@ -131,6 +131,12 @@ def _view_chunks(views: list[int], side: int) -> list[list[int]]:
     return [views[i : i + n] for i in range(0, len(views), n)]
 
 
+#: Cap on a shared-step map's step per pixel, in units of the rate (``MapAdam``). On the
+#: real photo lgd/028 the largest normal-slope step of 100 was 5.7 rates, so the cap does
+#: not bind there; it stops a pixel that holds most of a map's gradient (a glint, a mask
+#: edge) from stepping by up to ``sqrt(H * W)`` rates at once.
+MAX_SHARED_STEP = 10.0
+
 #: The flatness prior (``tilt_energy``) looks at the slopes area-averaged to this grid
 #: (the photo's padded side is a multiple of the 64 px working size) and then blurred by
 #: a Gaussian of ``FLATNESS_SIGMA`` grid cells: the low frequencies only, with a smooth
@@ -300,18 +306,24 @@ def refine_full_resolution(
         return loss
 
     params = _to_parameters(material)
-    # The prior's mask: None when every pixel is real (a square photo), which spares a
-    # full-resolution product per step.
+    # The real pixels, for the prior and the shared steps' mean (padding has no gradient
+    # and would inflate the real pixels' steps): None when every pixel is real (a square
+    # photo), which spares a full-resolution product per step.
     flat_mask = None if bool(photo_mask.all()) else photo_mask
 
     def prior_loss() -> torch.Tensor | None:
         return flatness * tilt_energy(params[1], flat_mask) if flatness > 0 else None
 
-    if shared_step_maps:
-        groups = [{"params": [p], "shared": name in shared_step_maps} for p, name in zip(params, MAP_NAMES)]
-        opt: torch.optim.Optimizer = MapAdam(groups, lr=lr)
-    else:  # fused: one kernel for the whole update (the per-tensor loop cost ~10% of a step)
-        opt = torch.optim.Adam(params, lr=lr, fused=True)
+    named = list(zip(MAP_NAMES, params, strict=True))
+    per_pixel = [p for name, p in named if name not in shared_step_maps]
+    shared = [p for name, p in named if name in shared_step_maps]
+    # fused: one kernel for the whole update (a per-tensor Python loop cost ~10% of a step
+    # at 1024 px); MapAdam's loop only for the shared maps (the normals by default).
+    opts: list[torch.optim.Optimizer] = []
+    if per_pixel:
+        opts.append(torch.optim.Adam(per_pixel, lr=lr, fused=True))
+    if shared:
+        opts.append(MapAdam(shared, lr=lr, mask=flat_mask, max_step=MAX_SHARED_STEP))
     history: list[float] = []
     best, best_loss = [p.detach().clone() for p in params], float("inf")
 
@@ -335,11 +347,13 @@ def refine_full_resolution(
 
     with tqdm(total=steps, desc="refine (full resolution)", leave=False, disable=not progress) as bar:
         for _ in range(steps):
-            opt.zero_grad(set_to_none=True)
+            for opt in opts:
+                opt.zero_grad(set_to_none=True)
             value = loss_and_grad()
             if value < best_loss:  # the loss belongs to the parameters before this step
                 best_loss, best = value, [p.detach().clone() for p in params]
-            opt.step()
+            for opt in opts:
+                opt.step()
             history.append(value)
             bar.update(1)
             bar.set_postfix(loss=f"{value:.5f}")

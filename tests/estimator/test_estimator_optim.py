@@ -8,8 +8,9 @@ import torch
 
 from estimator.optim import MapAdam
 
-#: Per-element MapAdam and torch.optim.Adam (single-tensor path) do the same float64
-#: operations in the same order; a few units of roundoff (2.2e-16) per step at most.
+#: MapAdam against torch.optim.Adam (single-tensor path) or the update written out here:
+#: the same float64 formula, its operations grouped slightly differently (torch squares
+#: the gradient inside ``addcmul_``); a few units of roundoff (2.2e-16) per step at most.
 SAME_OPS_RTOL = 1e-13
 
 
@@ -60,6 +61,57 @@ def test_shared_step_is_proportional_to_the_gradient():
     assert jump[True] < 0.25 * lr
 
 
+def test_shared_update_over_several_steps_matches_the_formula():
+    # Changing gradients over 5 steps: the bias corrections at t > 1 and the moving averages.
+    g = torch.Generator().manual_seed(1)
+    lr, (b1, b2), eps = 0.02, (0.9, 0.999), 1e-8
+    p = torch.zeros(1, 2, 6, 6, dtype=torch.float64, requires_grad=True)
+    opt = MapAdam([p], lr=lr, shared=True)
+    expect = torch.zeros(1, 2, 6, 6, dtype=torch.float64)
+    m = torch.zeros_like(expect)
+    v = torch.zeros(1, 2, 1, 1, dtype=torch.float64)
+    for t in range(1, 6):
+        grad = torch.randn(1, 2, 6, 6, generator=g, dtype=torch.float64) * t
+        p.grad = grad.clone()
+        opt.step()
+        m = b1 * m + (1 - b1) * grad
+        v = b2 * v + (1 - b2) * grad.square().mean(dim=(-2, -1), keepdim=True)
+        expect = expect - lr * (m / (1 - b1**t)) / ((v / (1 - b2**t)).sqrt() + eps)
+    torch.testing.assert_close(p.detach(), expect, rtol=SAME_OPS_RTOL, atol=1e-15)
+
+
+def test_mask_keeps_padding_from_diluting_the_shared_step():
+    # A 4 x 4 map padded to 4 x 8 with pixels no loss reaches (zero gradient): with the
+    # mask, the real pixels step exactly as without the padding; without it, the mean
+    # square halves and they step sqrt(2) times too far.
+    g = torch.Generator().manual_seed(2)
+    grad = torch.randn(1, 1, 4, 4, generator=g, dtype=torch.float64)
+    padded = torch.cat([grad, torch.zeros_like(grad)], dim=-1)
+    mask = torch.cat([torch.ones(4, 4, dtype=torch.bool), torch.zeros(4, 4, dtype=torch.bool)], dim=-1)
+
+    def first_step(gradient, **kw):
+        p = torch.zeros_like(gradient, requires_grad=True)
+        opt = MapAdam([p], lr=0.1, **kw)
+        p.grad = gradient.clone()
+        opt.step()
+        return p.detach()
+
+    alone = first_step(grad)
+    torch.testing.assert_close(first_step(padded, mask=mask)[..., :4], alone, rtol=SAME_OPS_RTOL, atol=0)
+    torch.testing.assert_close(first_step(padded)[..., :4], alone * 2**0.5, rtol=1e-6, atol=0)
+
+
+def test_max_step_caps_a_pixel_that_holds_the_whole_gradient():
+    grad = torch.zeros(1, 1, 64, 64)
+    grad[0, 0, 10, 10] = 1.0
+    for cap, expect in ((None, 64.0), (10.0, 10.0)):  # sqrt(H * W) rates uncapped
+        p = torch.zeros(1, 1, 64, 64, requires_grad=True)
+        opt = MapAdam([p], lr=0.01, max_step=cap)
+        p.grad = grad.clone()
+        opt.step()
+        assert float(p.detach().abs().max()) == pytest.approx(0.01 * expect, rel=1e-4)
+
+
 def test_shared_groups_and_per_element_groups_mix():
     a = torch.zeros(1, 1, 4, 4, requires_grad=True)
     b = torch.zeros(1, 1, 4, 4, requires_grad=True)
@@ -73,12 +125,26 @@ def test_shared_groups_and_per_element_groups_mix():
     torch.testing.assert_close(b.detach(), torch.full_like(b, -0.1), rtol=1e-5, atol=0)  # sign steps
 
 
-@pytest.mark.parametrize("bad", [dict(lr=0.0), dict(betas=(1.0, 0.999))])
-def test_bad_settings_are_refused(bad):
-    with pytest.raises(ValueError):
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        (dict(lr=0.0), "lr must be positive"),
+        (dict(betas=(1.0, 0.999)), "betas"),
+        (dict(eps=-1.0), "eps"),
+        (dict(max_step=0.0), "max_step"),
+        (dict(mask=torch.ones(3, 3, dtype=torch.bool)), "mask must be"),
+        (dict(mask=torch.zeros(2, 2, dtype=torch.bool)), "no pixel"),
+        (dict(shared=False, mask=torch.ones(2, 2, dtype=torch.bool)), "shared groups only"),
+    ],
+)
+def test_bad_settings_are_refused(bad, message):
+    with pytest.raises(ValueError, match=message):
         MapAdam([torch.zeros(1, 1, 2, 2, requires_grad=True)], **bad)
 
 
 def test_shared_group_needs_maps():
     with pytest.raises(ValueError, match="maps"):
         MapAdam([torch.zeros(4, requires_grad=True)], shared=True)
+    opt = MapAdam([torch.zeros(1, 1, 2, 2, requires_grad=True)])
+    with pytest.raises(ValueError, match="maps"):  # groups added later are checked too
+        opt.add_param_group({"params": [torch.zeros(4, requires_grad=True)]})
