@@ -131,10 +131,11 @@ def _view_chunks(views: list[int], side: int) -> list[list[int]]:
     return [views[i : i + n] for i in range(0, len(views), n)]
 
 
-#: Cap on a shared-step map's step per pixel, in units of the rate (``MapAdam``). On the
-#: real photo lgd/028 the largest normal-slope step of 100 was 5.7 rates, so the cap does
-#: not bind there; it stops a pixel that holds most of a map's gradient (a glint, a mask
-#: edge) from stepping by up to ``sqrt(H * W)`` rates at once.
+#: Cap on a shared-step map's step per pixel, in units of the rate (``MapAdam``). The
+#: largest normal-slope step of 100 was 5.7 rates on the real photo lgd/028, 5.2 on
+#: lgd/038 and 6.9 on the built-in procedural photo, so the cap does not bind there; it
+#: stops a pixel that holds most of a map's gradient (a glint, a mask edge) from stepping
+#: by up to ``sqrt(H * W)`` rates at once.
 MAX_SHARED_STEP = 10.0
 
 #: The flatness prior (``tilt_energy``) looks at the slopes area-averaged to this grid
