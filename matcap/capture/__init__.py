@@ -25,7 +25,9 @@ the folder). The steps:
    (render at full resolution, area-downsample, then the loss), a weight per view (the
    relit views' default weight is 0.03 against the photo's 1: fitting them harder cost
    re-render accuracy), optionally routed to some maps only (``relit_maps``), the
-   padded pixels masked out;
+   padded pixels masked out; Adam per pixel, except for the normals, whose step size is
+   shared by their pixels (``shared_step_maps``, ``estimator.optim.MapAdam``: per-pixel
+   steps creased them through the flash point, ``results/capture_steps``);
 7. the maps mapped back to the photo's pixel grid (``Frame.material_to_photo``);
 8. re-renders under the flash and the 7 evaluation lights, and a preview sheet.
 

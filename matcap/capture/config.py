@@ -72,7 +72,9 @@ MAP_NAMES = tuple(MAP_CHANNELS)
 DEFAULT_PHOTO_MAPS: tuple[str, ...] = ("diffuse", "normal")
 DEFAULT_RELIT_WEIGHT = 0.03
 DEFAULT_RELIT_MAPS = MAP_NAMES
-#: Adam rate of the per-pixel logits and normal slopes (``estimator.refine.refine_maps``'s).
+#: Adam rate of the per-pixel logits and normal slopes (``estimator.refine.refine_maps``'s):
+#: every pixel's step for the maps with per-pixel steps, the root-mean-square step over
+#: the pixels for the maps in ``shared_step_maps``.
 REFINE_LR = 1e-2
 #: Maps whose refinement step size is shared by all their pixels
 #: (``estimator.optim.MapAdam``): each pixel steps in proportion to its gradient. With
