@@ -49,6 +49,9 @@ class MapAdam(torch.optim.Optimizer):
         shared: the default for groups that do not set it.
         mask: ``[H, W]`` bool, the pixels the shared mean runs over (None: all).
         max_step: cap on any element's step, in units of ``lr`` (None: no cap).
+        share_channels: in shared groups, one second moment for all channels too
+            (``[..., 1, 1, 1]``), so a vector map's channels (a normal's x and y slopes)
+            are scaled alike and the step keeps the gradient's direction.
     """
 
     def __init__(
@@ -60,6 +63,7 @@ class MapAdam(torch.optim.Optimizer):
         shared: bool = True,
         mask: torch.Tensor | None = None,
         max_step: float | None = None,
+        share_channels: bool = False,
     ):
         if not lr > 0:
             raise ValueError(f"lr must be positive, got {lr}")
@@ -67,7 +71,9 @@ class MapAdam(torch.optim.Optimizer):
             raise ValueError(f"betas must be in [0, 1), got {betas}")
         if not eps >= 0:
             raise ValueError(f"eps must be >= 0, got {eps}")
-        defaults = dict(lr=lr, betas=betas, eps=eps, shared=shared, mask=mask, max_step=max_step)
+        defaults = dict(
+            lr=lr, betas=betas, eps=eps, shared=shared, mask=mask, max_step=max_step, share_channels=share_channels
+        )
         super().__init__(params, defaults)
 
     def add_param_group(self, param_group: dict) -> None:
@@ -107,7 +113,12 @@ class MapAdam(torch.optim.Optimizer):
                 if not state:
                     state["step"] = 0
                     state["exp_avg"] = torch.zeros_like(p)
-                    v_shape = (*p.shape[:-2], 1, 1) if group["shared"] else p.shape
+                    if not group["shared"]:
+                        v_shape = p.shape
+                    elif group["share_channels"]:
+                        v_shape = (*p.shape[:-3], 1, 1, 1)
+                    else:
+                        v_shape = (*p.shape[:-2], 1, 1)
                     state["exp_avg_sq"] = p.new_zeros(v_shape)
                 state["step"] += 1
                 t = state["step"]
@@ -120,6 +131,8 @@ class MapAdam(torch.optim.Optimizer):
                         square = square.mean(dim=(-2, -1), keepdim=True)
                     else:
                         square = (square * weights).sum(dim=(-2, -1), keepdim=True)
+                    if group["share_channels"]:
+                        square = square.mean(dim=-3, keepdim=True)
                 state["exp_avg_sq"].mul_(beta2).add_(square, alpha=1 - beta2)
                 # torch's Adam: p -= lr / (1 - b1^t) * m / (sqrt(v) / sqrt(1 - b2^t) + eps)
                 denom = (state["exp_avg_sq"].sqrt() / (1 - beta2**t) ** 0.5).add_(group["eps"])

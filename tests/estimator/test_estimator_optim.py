@@ -61,6 +61,25 @@ def test_shared_step_is_proportional_to_the_gradient():
     assert jump[True] < 0.25 * lr
 
 
+def test_share_channels_keeps_the_gradient_direction():
+    # The y slope's gradient three times the x slope's: per-channel moments give both
+    # channels the same RMS step (the direction turns towards 45 degrees); one moment for
+    # both keeps the 1 : 3 ratio, i.e. the gradient's direction.
+    x = torch.linspace(-1, 1, 8, dtype=torch.float64).expand(8, 8)
+    grad = torch.stack([x, 3 * x])[None]
+    ratio = {}
+    for joint in (False, True):
+        p = torch.zeros(1, 2, 8, 8, dtype=torch.float64, requires_grad=True)
+        opt = MapAdam([p], lr=0.01, share_channels=joint)
+        p.grad = grad.clone()
+        opt.step()
+        assert opt.state[p]["exp_avg_sq"].shape == ((1, 1, 1, 1) if joint else (1, 2, 1, 1))
+        ratio[joint] = float(p.detach()[0, 1].abs().max() / p.detach()[0, 0].abs().max())
+    # rel 1e-6: Adam's eps (1e-8) against RMS gradients of 0.6 and 1.8 tilts the ratio by ~1e-8.
+    assert ratio[False] == pytest.approx(1.0, rel=1e-6)
+    assert ratio[True] == pytest.approx(3.0, rel=1e-6)
+
+
 def test_shared_update_over_several_steps_matches_the_formula():
     # Changing gradients over 5 steps: the bias corrections at t > 1 and the moving averages.
     g = torch.Generator().manual_seed(1)
