@@ -1,12 +1,14 @@
 """Output folders and images: checking ``--out`` before the work, tone-mapped PNG +
-linear EXR pairs, contact sheets."""
+linear EXR pairs, contact sheets (optionally labelled)."""
 
 from __future__ import annotations
 
 import os
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from kernels.tonemap import tonemap
@@ -15,7 +17,7 @@ from materials.io import write_exr, write_png
 from materials.io.atomic import clean_stale
 from materials.io.encoding import chw_to_hwc
 
-__all__ = ["check_output_folder", "write_image_pair", "contact_sheet"]
+__all__ = ["check_output_folder", "write_image_pair", "contact_sheet", "label_tiles", "EMPTY_TILE_GREY"]
 
 
 def check_output_folder(folder: str | os.PathLike, *, overwrite: bool, marker: str) -> Path:
@@ -66,6 +68,46 @@ def write_image_pair(folder: Path, stem: str, image: torch.Tensor) -> list[Path]
     write_exr(exr, chw_to_hwc(image))
     write_png(png, chw_to_hwc(tonemap(image)))
     return [exr, png]
+
+
+#: Display value of a sheet's empty slots: a mid-dark grey, so an empty slot is not
+#: mistaken for a black map (a dielectric's specular is nearly black).
+EMPTY_TILE_GREY = 0.18
+#: Label band: text height in pixels and the band's darkening (the text stays readable
+#: on white maps, and the band covers only the top of the tile).
+_LABEL_PX = 12
+_LABEL_BAND_SCALE = 0.35
+
+
+def label_tiles(tiles: torch.Tensor, labels: Sequence[str | None]) -> torch.Tensor:
+    """Write one label into the top-left corner of each tile.
+
+    Args:
+        tiles: ``[N, 3, H, W]`` display values in [0, 1] (a copy is labelled).
+        labels: N labels; None or "" leaves that tile untouched.
+    Returns:
+        ``[N, 3, H, W]``: each labelled tile's top band (``_LABEL_PX + 4`` rows, as wide
+        as its text) darkened to ``_LABEL_BAND_SCALE`` with the text in white; every
+        other pixel unchanged.
+    """
+    from PIL import Image, ImageDraw, ImageFont
+
+    if len(labels) != tiles.shape[0]:
+        raise ValueError(f"need one label per tile: {tiles.shape[0]} tiles, {len(labels)} labels")
+    out = tiles.detach().float().clone()
+    font = ImageFont.load_default(size=_LABEL_PX)
+    band = _LABEL_PX + 4
+    for k, label in enumerate(labels):
+        if not label:
+            continue
+        width = min(out.shape[-1], int(font.getlength(label)) + 6)
+        out[k, :, :band, :width] *= _LABEL_BAND_SCALE
+        pixels = (out[k, :, :band, :width].clamp(0, 1) * 255).round().to(torch.uint8).permute(1, 2, 0)
+        image = Image.fromarray(pixels.contiguous().numpy())
+        ImageDraw.Draw(image).text((3, 1), label, fill=(255, 255, 255), font=font)
+        # Write back only the band: the rest of the tile keeps its exact float values.
+        out[k, :, :band, :width] = torch.from_numpy(np.array(image)).permute(2, 0, 1).float() / 255
+    return out
 
 
 def contact_sheet(images: torch.Tensor, columns: int | None = None) -> torch.Tensor:

@@ -126,12 +126,15 @@ def _tiles(images: torch.Tensor, side: int) -> torch.Tensor:
 
 
 def _preview_sheet(image, relit, refined: Material, estimate: Material, std, renders) -> torch.Tensor:
-    """Rows: photo + relit views; refined maps (diffuse and specular sRGB, normal
-    (n + 1) / 2, roughness linear), the estimator's diffuse, the confidence; re-renders."""
-    from matcap.outputs import contact_sheet
+    """Rows, each tile labelled: photo + relit views; refined maps (diffuse and specular
+    sRGB, normal (n + 1) / 2, roughness linear), the estimator's diffuse, the confidence;
+    re-renders (view 0 under the flash, then ``RENDER_LIGHTS``). Empty slots are
+    ``EMPTY_TILE_GREY``."""
+    from matcap.outputs import EMPTY_TILE_GREY, contact_sheet, label_tiles
 
     t = _SHEET_TILE
     row1 = torch.cat([_tiles(tonemap(image[None]), t), *([_tiles(tonemap(relit), t)] if len(relit) else [])])
+    labels1 = ["photo", *(f"relit {k + 1}" for k in range(len(relit)))]
     maps = [
         srgb_encode(refined.diffuse),
         encode_normal(refined.normal),
@@ -139,14 +142,19 @@ def _preview_sheet(image, relit, refined: Material, estimate: Material, std, ren
         srgb_encode(refined.specular),
         srgb_encode(estimate.diffuse),
     ]
+    labels2 = ["diffuse", "normal (OpenGL)", "roughness", "specular", "estimator diffuse"]
     if std is not None:
         spread = std.mean(dim=(0, 1))[None, None]
         maps.append(spread / spread.max().clamp_min(1e-8))
+        labels2.append("confidence (std)")
     row2 = torch.cat([_tiles(m, t) for m in maps])
     row3 = _tiles(tonemap(renders), t)
+    labels3 = ["render: flash", *(f"render: light {k}" for k in range(1, len(renders)))]
     columns = max(len(row1), len(row2), len(row3))
 
-    def pad(row):
-        return torch.cat([row, row.new_zeros(columns - len(row), 3, t, t)])
+    def pad(row, labels):
+        row = label_tiles(row, labels)
+        return torch.cat([row, row.new_full((columns - len(row), 3, t, t), EMPTY_TILE_GREY)])
 
-    return contact_sheet(torch.cat([pad(row1), pad(row2), pad(row3)]), columns=columns)
+    rows = [pad(row1, labels1), pad(row2, labels2), pad(row3, labels3)]
+    return contact_sheet(torch.cat(rows), columns=columns)
