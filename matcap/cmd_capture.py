@@ -79,6 +79,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="refinement weight of the flat-sample prior against low-frequency normal tilt (default 3; 0 turns it off)",
     )
     p.add_argument(
+        "--radial",
+        type=float,
+        default=None,
+        metavar="W",
+        help="refinement weight of the flash-independence prior against discs and rings centred on the flash "
+        "(default 0: off; 0 turns it off)",
+    )
+    p.add_argument(
         "--falloff",
         choices=("none", "inverse-square"),
         default=None,
@@ -144,6 +152,7 @@ def _config(args):
         ("--refine", args.refine, lambda v: v >= 0, "must be >= 0"),
         ("--relit-weight", args.relit_weight, lambda v: 0 <= v < float("inf"), "must be a number >= 0"),
         ("--flatness", args.flatness, lambda v: 0 <= v < float("inf"), "must be a number >= 0"),
+        ("--radial", args.radial, lambda v: 0 <= v < float("inf"), "must be a number >= 0"),
         ("--fov", args.fov, lambda v: 0 < v < 180, "must lie strictly between 0 and 180 degrees"),
         ("--max-side", args.max_side, lambda v: WORKING_SIZE <= v <= MAX_SIDE, f"must be {WORKING_SIZE}..{MAX_SIDE}"),
         (
@@ -169,6 +178,7 @@ def _config(args):
         "refine_steps": args.refine,
         "relit_weight": args.relit_weight,
         "flatness": args.flatness,
+        "radial": args.radial,
         "relit_maps": parse_map_names(args.relit_maps, "--relit-maps", allow_none=False),
         "photo_maps": parse_map_names(args.photo_maps, "--photo-maps"),
         "shared_step_maps": parse_map_names(args.shared_step_maps, "--shared-step-maps"),

@@ -174,6 +174,13 @@ def _add_capture_parser(what) -> None:
         help="weight of the refinement's flat-sample normal prior (default: the pipeline's)",
     )
     c.add_argument(
+        "--radial",
+        type=float,
+        default=None,
+        metavar="W",
+        help="weight of the refinement's flash-independence prior (default: the pipeline's)",
+    )
+    c.add_argument(
         "--relit-weight",
         type=float,
         default=None,
@@ -228,6 +235,7 @@ def run_capture(args) -> int:
         overrides = {
             "estimate_size": args.estimate_size,
             "flatness": args.flatness,
+            "radial": args.radial,
             "relit_weight": args.relit_weight,
             "relit_maps": parse_map_names(args.relit_maps, "--relit-maps", allow_none=False),
             "photo_maps": parse_map_names(args.photo_maps, "--photo-maps"),

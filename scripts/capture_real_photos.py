@@ -51,11 +51,41 @@ def highlight_ratio(diffuse: torch.Tensor, frame, camera: torch.Tensor) -> float
     return float(lum[r <= DISC].mean() / lum[(r >= RING[0]) & (r <= RING[1])].mean())
 
 
+#: Ring width of ``flash_profile``, plane units (plane side 4): the refinement prior's
+#: (``matcap.capture.priors.RADIAL_RINGS`` rings per side).
+PROFILE_RING = 0.125
+#: Added before the log in ``flash_profile`` (``matcap.capture.priors.RADIAL_LOG_EPS``).
+PROFILE_EPS = 0.01
+
+
+def flash_profile(x: torch.Tensor, frame, camera: torch.Tensor) -> float:
+    """How much ``x [C, H, W]`` (a map on the photo grid, linear) depends on the distance
+    from the point under the flash: the RMS over pixels of its rings' mean
+    ``log(x + PROFILE_EPS)`` about the mean of all pixels, rings ``PROFILE_RING`` wide
+    (hard bins, channels averaged first). 0 for a map whose rings all average the same;
+    a disc or a ring centred on the flash (a baked highlight, the specular / roughness
+    trade of a single flash view) raises it. In natural-log units (0.1: ~10%).
+
+    Measured here with hard bins on the photo grid, independently of the soft-binned
+    prior (``matcap.capture.priors.FlashRings``) the refinement may use."""
+    h, w = x.shape[-2:]
+    rows, cols = torch.meshgrid(
+        torch.arange(h, dtype=torch.float32), torch.arange(w, dtype=torch.float32), indexing="ij"
+    )
+    px, py = frame.pixel_to_plane(rows, cols)
+    ring = (torch.hypot(px - camera[0], py - camera[1]) / PROFILE_RING).long().flatten()
+    v = torch.log(x.double() + PROFILE_EPS).mean(0).flatten()
+    n = torch.zeros(int(ring.max()) + 1, dtype=torch.float64).index_add(0, ring, torch.ones_like(v))
+    sums = torch.zeros_like(n).index_add(0, ring, v)
+    means = sums[n > 0] / n[n > 0]
+    return math.sqrt(float((n[n > 0] * (means - v.mean()).square()).sum() / v.numel()))
+
+
 def low_tilt_deg(normal: torch.Tensor) -> float:
     """RMS angle, degrees, of the low-pass normal of ``normal [3, H, W]`` (unit, tangent
-    space): ``atan(sqrt(tilt_energy))`` of its slopes (``matcap.capture.refine``), the
+    space): ``atan(sqrt(tilt_energy))`` of its slopes (``matcap.capture.priors``), the
     four-quadrant tilt a refinement uses to move a flash highlight. ~0 for a flat sample."""
-    from matcap.capture.refine import tilt_energy
+    from matcap.capture.priors import tilt_energy
 
     n = normal.float()[None]
     slope = n[:, :2] / n[:, 2:3].clamp_min(1e-3)
@@ -102,6 +132,9 @@ def main(argv: list[str] | None = None) -> int:
         "--flatness", type=float, default=None, help="refinement flatness weight (default: the pipeline's)"
     )
     parser.add_argument(
+        "--radial", type=float, default=None, help="refinement flash-independence weight (default: the pipeline's)"
+    )
+    parser.add_argument(
         "--shared-step-maps",
         default=None,
         help="maps whose refinement step is shared by their pixels, comma-separated or none (default: the pipeline's)",
@@ -129,6 +162,8 @@ def main(argv: list[str] | None = None) -> int:
     pipeline = CapturePipeline.from_pretrained(estimator=args.estimator)
     if args.flatness is not None:
         pipeline.config = replace(pipeline.config, flatness=args.flatness)
+    if args.radial is not None:
+        pipeline.config = replace(pipeline.config, radial=args.radial)
     if args.shared_step_maps is not None:
         pipeline.config = replace(
             pipeline.config, shared_step_maps=parse_map_names(args.shared_step_maps, "--shared-step-maps")
@@ -159,6 +194,7 @@ def main(argv: list[str] | None = None) -> int:
             "seconds": round(seconds, 1),
             **measure(photo.image, runs, camera),
             "flatness": pipeline.config.flatness,
+            "radial": pipeline.config.radial,
             "shared_step_maps": list(pipeline.config.shared_step_maps),
         }
         records.append(record)
@@ -200,6 +236,8 @@ def measure(photo: torch.Tensor, runs: dict, camera: torch.Tensor) -> dict:
         "tilt_deg_relit": round(low_tilt_deg(runs["relit"][0].normal), 2),
     }
     for run, (material, frame) in runs.items():
+        for name in ("diffuse", "roughness", "specular"):
+            record[f"profile_{name}_{run}"] = round(flash_profile(getattr(material, name), frame, camera), 3)
         at, elsewhere = crease_deg(material.normal, frame, camera)
         record[f"crease_deg_{run}"], record[f"crease_deg_{run}_elsewhere"] = round(at, 2), round(elsewhere, 2)
     return record
@@ -228,6 +266,7 @@ def remeasure(path: Path, work: Path) -> dict:
         "seconds": None,  # not timed again
         **measure(read_photo(path).image, runs, torch.tensor(prov["relit"]["scene"]["camera_pos"])),
         "flatness": settings["flatness"],
+        "radial": settings.get("radial", 0.0),
         "shared_step_maps": settings.get("shared_step_maps", []),
     }
 

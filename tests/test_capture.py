@@ -307,7 +307,7 @@ def test_tilt_energy_sees_low_frequency_tilt_not_bumps():
     # A flat sample however bumpy: slopes of a periodic height field average to ~0 over
     # each cell, so the prior costs ~nothing; a constant tilt s costs s^2 (the blur keeps
     # a constant); a tilt in the masked-out padding costs nothing.
-    from matcap.capture.refine import FLATNESS_GRID, tilt_energy
+    from matcap.capture.priors import FLATNESS_GRID, tilt_energy
 
     side = 2 * FLATNESS_GRID
     k = 2 * math.pi / 8  # bumps of an 8 px period: 16 whole periods across

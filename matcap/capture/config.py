@@ -41,7 +41,7 @@ DEFAULT_REFINE_STEPS = 100
 #: ``results/estimator_resolution``), in 1 s for 8 views; 512 px adds nothing (-0.2 dB)
 #: at 8x the time and ~2 GB.
 DEFAULT_ESTIMATE_SIZE = 256
-#: Weight of the refinement's flat-sample prior (``matcap.capture.refine.tilt_energy``):
+#: Weight of the refinement's flat-sample prior (``matcap.capture.priors.tilt_energy``):
 #: the low-frequency tilt of the normal map, which the refinement otherwise uses to
 #: explain a flash falloff that does not match the model's (four tilted quadrants around
 #: the flash on real photos). Measured (``results/capture_flatness/``; 4 procedural, 4
@@ -50,6 +50,12 @@ DEFAULT_ESTIMATE_SIZE = 256
 #: +0.35 dB; on the 10 real photos the normal maps' low-frequency tilt falls from 4.5 to
 #: 1.6 degrees (7 relit views). 30 left creases where the quadrants met.
 DEFAULT_FLATNESS = 3.0
+#: Weight of the refinement's flash-independence prior
+#: (``matcap.capture.priors.flash_independence``): the radial profile of the maps around
+#: the point under the flash. Not yet measured: 0 (off).
+DEFAULT_RADIAL = 0.0
+#: The maps the flash-independence prior looks at.
+DEFAULT_RADIAL_MAPS = ("diffuse", "normal", "roughness", "specular")
 #: The maps' names, in ``Material.map_tensors`` order.
 MAP_NAMES = tuple(MAP_CHANNELS)
 #: How the relit views are used (``results/capture_views``: 13 held-out materials, 4
@@ -117,6 +123,11 @@ class CaptureConfig:
         flatness: weight of the flat-sample prior on the refined normals (0: none;
             ``DEFAULT_FLATNESS``): a photographed sample is flat, so its normal map
             should not tilt at low frequency however bumpy its surface.
+        radial: weight of the flash-independence prior on the refined maps (0: none;
+            ``DEFAULT_RADIAL``): the material does not know where the flash was, so a
+            map's mean over a ring around the point under the flash should not depend on
+            the ring's radius (no disc or ring centred on the flash).
+        radial_maps: the maps that prior looks at (names of ``MAP_NAMES``).
         falloff: ``"none"`` or ``"inverse-square"`` (package docstring).
         fov: field of view across the photo's long side, degrees (None: EXIF or 45).
         camera: camera (and flash) position ``(x, y, z)``, scene units; overrides ``fov``.
@@ -152,6 +163,8 @@ class CaptureConfig:
     photo_maps: tuple[str, ...] = DEFAULT_PHOTO_MAPS
     shared_step_maps: tuple[str, ...] = DEFAULT_SHARED_STEP_MAPS
     flatness: float = DEFAULT_FLATNESS
+    radial: float = DEFAULT_RADIAL
+    radial_maps: tuple[str, ...] = DEFAULT_RADIAL_MAPS
     falloff: str = DEFAULT_FALLOFF
     fov: float | None = None
     camera: tuple[float, float, float] | None = None
@@ -180,11 +193,10 @@ class CaptureConfig:
             self.relit_robust is None or (math.isfinite(self.relit_robust) and self.relit_robust > 0),
             f"relit_robust must be a positive number, got {self.relit_robust}",
         )
-        need(
-            math.isfinite(self.flatness) and self.flatness >= 0,
-            f"flatness must be a finite number >= 0, got {self.flatness}",
-        )
-        for name in ("relit_maps", "photo_maps", "shared_step_maps"):
+        for name in ("flatness", "radial"):
+            value = getattr(self, name)
+            need(math.isfinite(value) and value >= 0, f"{name} must be a finite number >= 0, got {value}")
+        for name in ("relit_maps", "photo_maps", "shared_step_maps", "radial_maps"):
             value = getattr(self, name)
             need(
                 isinstance(value, tuple) and len(set(value)) == len(value) and set(value) <= set(MAP_NAMES),

@@ -285,7 +285,7 @@ class CapturePipeline:
                     photo_ceiling=photo_ceiling if cfg.clip_aware else None,
                     relit_ceiling=ceiling if cfg.clip_aware else None, relit_robust=cfg.relit_robust,
                     relit_maps=cfg.relit_maps, shared_step_maps=cfg.shared_step_maps,
-                    flatness=cfg.flatness, lr=cfg.refine_lr,
+                    flatness=cfg.flatness, radial=cfg.radial, radial_maps=cfg.radial_maps, lr=cfg.refine_lr,
                     render_kwargs=scene.render_kwargs, progress=progress,
                 )  # fmt: skip
                 refined, history = result.material, result.history

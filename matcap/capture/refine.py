@@ -11,7 +11,6 @@ from collections.abc import Collection
 
 import torch
 import torch.nn.functional as F
-from kornia.filters import gaussian_blur2d
 from tqdm.auto import tqdm
 
 import kernels
@@ -26,6 +25,7 @@ from matcap.capture.config import (
     MAP_NAMES,
     REFINE_LR,
 )
+from matcap.capture.priors import FlashRings, flash_independence, plane_to_grid, tilt_energy
 from matcap.capture.scene import area_downsample
 from materials.types import Material
 
@@ -138,40 +138,6 @@ def _view_chunks(views: list[int], side: int) -> list[list[int]]:
 #: by up to ``sqrt(H * W)`` rates at once.
 MAX_SHARED_STEP = 10.0
 
-#: The flatness prior (``tilt_energy``) looks at the slopes area-averaged to this grid
-#: (the photo's padded side is a multiple of the 64 px working size) and then blurred by
-#: a Gaussian of ``FLATNESS_SIGMA`` grid cells: the low frequencies only, with a smooth
-#: gradient (averages over disjoint cells gave the maps a visible cell pattern).
-FLATNESS_GRID = 64
-#: 1/16 of the photo's side: a tilt that varies over a sixteenth of the sample or more.
-FLATNESS_SIGMA = 4.0
-
-
-def tilt_energy(
-    slope: torch.Tensor,
-    mask: torch.Tensor | None = None,
-    grid: int = FLATNESS_GRID,
-    sigma: float = FLATNESS_SIGMA,
-) -> torch.Tensor:
-    """Mean squared low-pass normal slope: ``slope`` ``[1, 2, S, S]`` (``n_xy / n_z``),
-    zero where ``mask`` (``[S, S]`` bool, None: all True) is False, area-averaged to
-    ``grid x grid`` (S a multiple of it, or S itself if smaller) and blurred by a Gaussian
-    of ``sigma`` grid cells (reflected at the borders). Masked-out pixels (a photo's
-    padding) neither pay nor can cancel a tilt of the real pixels.
-
-    The mean slope over a region is the height difference across it divided by its
-    width, so this is ~0 for a flat sample however bumpy its surface; what it costs is a
-    tilt of the normal map at low frequency, the refinement's way of moving a flash
-    highlight it cannot otherwise explain (a four-quadrant tilt on real photos).
-    """
-    g = min(grid, slope.shape[-1])
-    x = area_downsample(slope if mask is None else slope * mask.to(slope.dtype), g)
-    r = math.ceil(3 * sigma)  # taps to 3 sigma
-    if r >= g:  # the blur would span the whole grid (reflect padding needs r < g)
-        return x.mean(dim=(-2, -1)).square().mean()
-    return gaussian_blur2d(x, 2 * r + 1, (sigma, sigma), border_type="reflect").square().mean()
-
-
 def refine_memory_bytes(side: int, views: int) -> int:
     """Estimated peak bytes of ``refine_full_resolution`` at ``side x side`` (float32).
 
@@ -203,6 +169,8 @@ def refine_full_resolution(
     relit_maps: Collection[str] = MAP_NAMES,
     shared_step_maps: Collection[str] = DEFAULT_SHARED_STEP_MAPS,
     flatness: float = 0.0,
+    radial: float = 0.0,
+    radial_maps: Collection[str] = MAP_NAMES,
     steps: int = DEFAULT_REFINE_STEPS,
     lr: float = REFINE_LR,
     tol: float = DEFAULT_TOL,
@@ -213,7 +181,8 @@ def refine_full_resolution(
     """Fit per-pixel maps at the photo's resolution to the photo and to lower-resolution
     relit views, through the Warp renderer.
 
-    Loss: ``sum_v w_v L_v / sum_v w_v + flatness * tilt_energy`` with ``L_v`` the mean log-L1
+    Loss: ``sum_v w_v L_v / sum_v w_v + flatness * tilt_energy + radial *
+    flash_independence`` (``matcap.capture.priors``) with ``L_v`` the mean log-L1
     (``kernels.log_l1_loss``, Deschaintre et al. 2018) over the masked pixels: view 0 the
     maps rendered under the flash against ``photo`` at full resolution; view k >= 1
     rendered at full resolution under light k, area-downsampled to the relit size, against
@@ -242,6 +211,10 @@ def refine_full_resolution(
             others get per-pixel Adam (``torch.optim.Adam``'s update).
         flatness: weight of the flat-sample prior ``flatness * tilt_energy(slopes,
             photo_mask)`` added to the loss (0: none).
+        radial: weight of the flash-independence prior ``radial *
+            flash_independence(rings, maps)`` (0: none): the radial profile of
+            ``radial_maps`` (``MAP_NAMES``) around the point under the flash (row 0 of
+            ``light_pos``), over the real pixels.
         render_kwargs: ``kernels.render`` keywords (preset, falloff, intensity).
 
     Returns:
@@ -260,6 +233,12 @@ def refine_full_resolution(
     unknown = set(shared_step_maps) - set(MAP_NAMES)
     if unknown:
         raise ValueError(f"shared_step_maps must be names of {', '.join(MAP_NAMES)}, got {sorted(shared_step_maps)}")
+    unknown = set(radial_maps) - set(MAP_NAMES)
+    if unknown:
+        raise ValueError(f"radial_maps must be names of {', '.join(MAP_NAMES)}, got {sorted(radial_maps)}")
+    for name, value in (("flatness", flatness), ("radial", radial)):
+        if not (math.isfinite(value) and value >= 0):
+            raise ValueError(f"{name} must be a finite number >= 0, got {value}")
     # Which of the maps (in ``map_tensors`` order) the relit views' gradient reaches; None: all.
     routed = None if set(relit_maps) == set(MAP_NAMES) else tuple(name in relit_maps for name in MAP_NAMES)
     weights = [photo_weight] + [relit_weight] * k
@@ -312,8 +291,22 @@ def refine_full_resolution(
     # photo), which spares a full-resolution product per step.
     flat_mask = None if bool(photo_mask.all()) else photo_mask
 
+    rings = None
+    if radial > 0 and radial_maps:
+        plane = render_kwargs.get("plane_size") or kernels.get_preset(render_kwargs.get("preset", "dgrsise")).plane_size
+        center = plane_to_grid(float(light_pos[0, 0]), float(light_pos[0, 1]), side, plane)
+        rings = FlashRings(side, center, flat_mask)
+
     def prior_loss() -> torch.Tensor | None:
-        return flatness * tilt_energy(params[1], flat_mask) if flatness > 0 else None
+        total = None
+        if flatness > 0:
+            total = flatness * tilt_energy(params[1], flat_mask)
+        if rings is not None:
+            m = _from_parameters(params)
+            named_maps = {"diffuse": m.diffuse, "normal": params[1], "roughness": m.roughness, "specular": m.specular}
+            term = radial * flash_independence(rings, {n: named_maps[n] for n in MAP_NAMES if n in radial_maps})
+            total = term if total is None else total + term
+        return total
 
     named = list(zip(MAP_NAMES, params, strict=True))
     per_pixel = [p for name, p in named if name not in shared_step_maps]
