@@ -84,7 +84,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=None,
         metavar="W",
         help="refinement weight of the flash-independence prior against discs and rings centred on the flash "
-        "(default 0: off; 0 turns it off)",
+        "(default 1; 0 turns it off)",
+    )
+    p.add_argument(
+        "--radial-maps",
+        default=None,
+        metavar="NAMES",
+        help="maps the flash-independence prior looks at, comma-separated (default normal,roughness,specular)",
     )
     p.add_argument(
         "--falloff",
@@ -180,6 +186,7 @@ def _config(args):
         "flatness": args.flatness,
         "radial": args.radial,
         "relit_maps": parse_map_names(args.relit_maps, "--relit-maps", allow_none=False),
+        "radial_maps": parse_map_names(args.radial_maps, "--radial-maps"),
         "photo_maps": parse_map_names(args.photo_maps, "--photo-maps"),
         "shared_step_maps": parse_map_names(args.shared_step_maps, "--shared-step-maps"),
         "falloff": args.falloff,

@@ -181,6 +181,12 @@ def _add_capture_parser(what) -> None:
         help="weight of the refinement's flash-independence prior (default: the pipeline's)",
     )
     c.add_argument(
+        "--radial-maps",
+        default=None,
+        metavar="NAMES",
+        help="comma-separated maps the flash-independence prior looks at (default: the pipeline's)",
+    )
+    c.add_argument(
         "--relit-weight",
         type=float,
         default=None,
@@ -238,6 +244,7 @@ def run_capture(args) -> int:
             "radial": args.radial,
             "relit_weight": args.relit_weight,
             "relit_maps": parse_map_names(args.relit_maps, "--relit-maps", allow_none=False),
+            "radial_maps": parse_map_names(args.radial_maps, "--radial-maps"),
             "photo_maps": parse_map_names(args.photo_maps, "--photo-maps"),
             "shared_step_maps": parse_map_names(args.shared_step_maps, "--shared-step-maps"),
         }

@@ -135,6 +135,11 @@ def main(argv: list[str] | None = None) -> int:
         "--radial", type=float, default=None, help="refinement flash-independence weight (default: the pipeline's)"
     )
     parser.add_argument(
+        "--radial-maps",
+        default=None,
+        help="maps the flash-independence prior looks at, comma-separated (default: the pipeline's)",
+    )
+    parser.add_argument(
         "--shared-step-maps",
         default=None,
         help="maps whose refinement step is shared by their pixels, comma-separated or none (default: the pipeline's)",
@@ -164,6 +169,8 @@ def main(argv: list[str] | None = None) -> int:
         pipeline.config = replace(pipeline.config, flatness=args.flatness)
     if args.radial is not None:
         pipeline.config = replace(pipeline.config, radial=args.radial)
+    if args.radial_maps is not None:
+        pipeline.config = replace(pipeline.config, radial_maps=parse_map_names(args.radial_maps, "--radial-maps"))
     if args.shared_step_maps is not None:
         pipeline.config = replace(
             pipeline.config, shared_step_maps=parse_map_names(args.shared_step_maps, "--shared-step-maps")
@@ -195,6 +202,7 @@ def main(argv: list[str] | None = None) -> int:
             **measure(photo.image, runs, camera),
             "flatness": pipeline.config.flatness,
             "radial": pipeline.config.radial,
+            "radial_maps": list(pipeline.config.radial_maps),
             "shared_step_maps": list(pipeline.config.shared_step_maps),
         }
         records.append(record)
@@ -267,6 +275,7 @@ def remeasure(path: Path, work: Path) -> dict:
         **measure(read_photo(path).image, runs, torch.tensor(prov["relit"]["scene"]["camera_pos"])),
         "flatness": settings["flatness"],
         "radial": settings.get("radial", 0.0),
+        "radial_maps": settings.get("radial_maps", []),
         "shared_step_maps": settings.get("shared_step_maps", []),
     }
 

@@ -391,7 +391,18 @@ def test_relit_zero_equals_the_estimator_and_refinement_by_hand(tiny_estimator):
     empty = torch.zeros(0, 3, 64, 64)
     mask = frame.valid_mask()
     result = refine_full_resolution(
-        init, image, mask, empty, mask, camera[None], camera, photo_ceiling=1.0, flatness=config.flatness, steps=4
+        init,
+        image,
+        mask,
+        empty,
+        mask,
+        camera[None],
+        camera,
+        photo_ceiling=1.0,
+        flatness=config.flatness,
+        radial=config.radial,
+        radial_maps=config.radial_maps,
+        steps=4,
     )
     by_hand = frame.material_to_photo(result.material[0])
     assert out.refine_history == pytest.approx(result.history, rel=SAME_MATH_TOL)
@@ -512,10 +523,13 @@ def capture_argv(photo, out, estimator_folder, *extra):
 def test_cli_capture_then_estimate_round_trip(tmp_path, estimator_folder, capsys):
     out = tmp_path / "cap"
     args = capture_argv("builtin:tiles", out, estimator_folder, "--relighter", "lambertian", "--relit", "3")
-    assert main([*args, "--falloff", "none", "--estimate-size", "64", "--shared-step-maps", "normal,roughness"]) == 0
+    args += ["--falloff", "none", "--estimate-size", "64", "--shared-step-maps", "normal,roughness"]
+    assert main([*args, "--radial", "0.5", "--radial-maps", "roughness,specular"]) == 0
     assert "capture" in capsys.readouterr().err  # the progress bar
     prov = json.loads((out / PROVENANCE_JSON).read_text())
-    assert prov["settings"]["shared_step_maps"] == ["normal", "roughness"]  # the flag reaches the pipeline
+    settings = prov["settings"]  # the flags reach the pipeline
+    assert settings["shared_step_maps"] == ["normal", "roughness"]
+    assert (settings["radial"], settings["radial_maps"]) == (0.5, ["roughness", "specular"])
     capture = read_capture(out / "capture")
     assert capture.num_views == 4 and capture.shape == (64, 64)
     assert torch.allclose(capture.light_pos[1:], torch.tensor(EVAL_LIGHTS[:3]))
@@ -611,6 +625,8 @@ def test_cli_bad_photo_is_one_error_line_and_nothing_written(tmp_path, estimator
         (["--relighter", "lambertian", "--samples", "2"], "applies to sampling methods"),
         (["--relit-size", "100"], "--relit-size must be a multiple of 64"),
         (["--flatness", "-1"], "--flatness must be a number >= 0"),
+        (["--radial", "-0.5"], "--radial must be a number >= 0"),
+        (["--radial-maps", "gloss"], "--radial-maps takes distinct names"),
         (["--relit-maps", "albedo"], "--relit-maps takes distinct names of diffuse, normal"),
         (["--photo-maps", "normal,normal"], "--photo-maps takes distinct names"),
         (["--shared-step-maps", "slope"], "--shared-step-maps takes distinct names"),
@@ -668,6 +684,8 @@ def test_help_numbers_match_the_code(capsys):
     from matcap.capture import (
         DEFAULT_FLATNESS,
         DEFAULT_PHOTO_MAPS,
+        DEFAULT_RADIAL,
+        DEFAULT_RADIAL_MAPS,
         DEFAULT_REFINE_STEPS,
         DEFAULT_RELIGHT_STEPS,
         DEFAULT_RELIT_MAPS,
@@ -682,6 +700,8 @@ def test_help_numbers_match_the_code(capsys):
     assert f"refinement steps (default {DEFAULT_REFINE_STEPS})" in text
     assert f"the photo's is 1 (default {DEFAULT_RELIT_WEIGHT:g}:" in text
     assert f"low-frequency normal tilt (default {DEFAULT_FLATNESS:g};" in text
+    assert f"centred on the flash (default {DEFAULT_RADIAL:g};" in text
+    assert f"separated (default {','.join(DEFAULT_RADIAL_MAPS)})" in text
     assert f"fitted to the photo alone (default {','.join(DEFAULT_RELIT_MAPS)})" in text
     assert f"the relit views (default {','.join(DEFAULT_PHOTO_MAPS) or 'none'})" in text
     assert f"Adam per pixel (default {','.join(DEFAULT_SHARED_STEP_MAPS) or 'none'}:" in text

@@ -166,7 +166,7 @@ def test_cli_eval_capture_writes_the_report(tmp_path, estimator_folder, capsys):
     argv = ["eval", "capture", "--out", str(out), "--sets", "procedural", "--runs", "alone,gt"]
     argv += ["--count", "1", "--size", "64", "--refine", "1", "--estimator", str(estimator_folder)]
     argv += ["--photo-maps", "normal", "--relit-maps", "roughness,specular", "--relit-weight", "0.5"]
-    argv += ["--shared-step-maps", "none"]
+    argv += ["--shared-step-maps", "none", "--radial", "2", "--radial-maps", "normal"]
     assert main(argv) == 0
     data = json.loads((out / "capture_eval.json").read_text())
     capture = data["config"]["capture"]  # the flags reach the pipeline's settings
@@ -175,7 +175,7 @@ def test_cli_eval_capture_writes_the_report(tmp_path, estimator_folder, capsys):
         ["roughness", "specular"],
         0.5,
     )
-    assert capture["shared_step_maps"] == []
+    assert capture["shared_step_maps"] == [] and (capture["radial"], capture["radial_maps"]) == (2.0, ["normal"])
     assert [r["run"] for r in data["rows"]] == ["alone", "gt"]
     assert "Table 2" in (out / "capture_eval.md").read_text()
     # An existing result is kept unless --overwrite.
@@ -197,6 +197,8 @@ def test_cli_eval_capture_writes_the_report(tmp_path, estimator_folder, capsys):
         (["--photo-maps", "albedo"], "--photo-maps takes distinct names"),
         (["--shared-step-maps", "normal,normal"], "--shared-step-maps takes distinct names"),
         (["--relit-maps", "none"], "--relit-maps takes distinct names"),
+        (["--radial-maps", "gloss"], "--radial-maps takes distinct names"),
+        (["--radial", "-1"], "radial must be a finite number >= 0"),
         (["--relit-weight", "-1"], "relit_weight must be a finite number >= 0"),
         (["--runs", "alone,diffusion", "--checkpoint", "diffusion=/nonexistent"], "/nonexistent"),
     ],

@@ -27,15 +27,21 @@ REFERENCE_TOL = 1e-10
 #: pixels has variance var / n, so the expected ratio is (rings used) / (pixels), about
 #: 100 / 16384 = 0.006; 0.05 is 8x that and far below a disc's ~0.9.
 NOISE_RATIO_TOL = 0.05
+#: Block means against per-pixel ring weights for a disc with texture: a ring is 32 px
+#: wide at 1024 px and a block 4 px, so a pixel's tent weight moves by at most ~1/16 of a
+#: ring; measured 2e-4 relative. 2e-3 is 10x that and fails for rings centred 8 px (two
+#: blocks) off (5e-3 measured; 16 px: 1.9e-2).
+POOLED_ENERGY_TOL = 2e-3
 #: A prior weight that dominates the photo's log-L1 in ``test_the_prior_holds_back...``:
 #: there the disc's log-roughness profile costs ~0.08 at its full size, the photo's loss
 #: it explains ~0.01.
 PRIOR_WEIGHT = 10.0
 
 
-def _dense_energy(x: torch.Tensor, center, mask, rings: int, centered: bool) -> torch.Tensor:
+def _dense_energy(x: torch.Tensor, center, mask, rings: int, centered: bool, factor: int = 1) -> torch.Tensor:
     """The prior written out pixel by pixel: a [n_rings, S * S] matrix of each pixel's
-    linear (tent) weight in each ring, ring means, their weighted variance."""
+    linear (tent) weight in each ring, taken at the centre of its ``factor x factor``
+    block, ring means, their weighted variance."""
     side = x.shape[-1]
     n_rings = int(math.hypot(side, side) * rings / side) + 4
     weights = torch.zeros(n_rings, side * side, dtype=torch.float64)
@@ -43,7 +49,8 @@ def _dense_energy(x: torch.Tensor, center, mask, rings: int, centered: bool) -> 
         for j in range(side):
             if mask is not None and not bool(mask[i, j]):
                 continue
-            t = math.hypot(i - center[0], j - center[1]) * rings / side
+            bi, bj = (i // factor) * factor + (factor - 1) / 2, (j // factor) * factor + (factor - 1) / 2
+            t = math.hypot(bi - center[0], bj - center[1]) * rings / side
             for b in range(n_rings):
                 weights[b, i * side + j] = max(0.0, 1.0 - abs(t - b))
     flat = x[0].flatten(1)  # [C, S * S]
@@ -56,26 +63,48 @@ def _dense_energy(x: torch.Tensor, center, mask, rings: int, centered: bool) -> 
 
 
 @pytest.mark.parametrize("centered", [True, False])
-def test_flash_rings_match_the_dense_reference_forward_and_gradient(centered):
+# 20 // 3 = 6 does not divide 20: blocks of 5.
+@pytest.mark.parametrize(("side", "grid", "factor"), [(24, 24, 1), (24, 6, 4), (20, 3, 5)])
+def test_flash_rings_match_the_dense_reference_forward_and_gradient(centered, side, grid, factor):
     torch.manual_seed(0)
-    side, rings = 24, 8
+    rings = 8
     center = (9.3, 14.6)  # off the grid's centre and between pixels
     mask = torch.ones(side, side, dtype=torch.bool)
-    mask[:, 20:] = False  # padding
+    mask[:, 18:] = False  # padding, across a block at factors 4 and 5
     x = torch.rand(1, 3, side, side, dtype=torch.float64, requires_grad=True)
-    fast = FlashRings(side, center, mask, rings, torch.float64).energy(x, centered)
-    ref = _dense_energy(x, center, mask, rings, centered)
+    flash_rings = FlashRings(side, center, mask, rings, torch.float64, grid=grid)
+    assert flash_rings.factor == factor
+    fast = flash_rings.energy(x, centered)
+    ref = _dense_energy(x, center, mask, rings, centered, factor)
     assert float(fast.detach()) == pytest.approx(float(ref.detach()), rel=REFERENCE_TOL)
     (g_fast,) = torch.autograd.grad(fast, x)
-    (g_ref,) = torch.autograd.grad(_dense_energy(x, center, mask, rings, centered), x)
+    (g_ref,) = torch.autograd.grad(_dense_energy(x, center, mask, rings, centered, factor), x)
     torch.testing.assert_close(g_fast, g_ref, rtol=REFERENCE_TOL, atol=REFERENCE_TOL * float(g_ref.abs().max()))
 
 
-def test_flash_rings_gradcheck_float64():
+@pytest.mark.parametrize("grid", [10, 5])
+def test_flash_rings_gradcheck_float64(grid):
     torch.manual_seed(1)
-    rings = FlashRings(10, (4.2, 5.7), None, 5, torch.float64)
+    mask = torch.ones(10, 10, dtype=torch.bool)
+    mask[7:] = False
+    rings = FlashRings(10, (4.2, 5.7), mask, 5, torch.float64, grid=grid)
     x = torch.rand(1, 2, 10, 10, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(lambda t: rings.energy(t), (x,))
+
+
+def test_block_means_keep_the_full_resolution_profile():
+    # The default grid at 1024 px (blocks of 4 px) against every pixel its own block:
+    # a dark disc under the flash with texture on top costs nearly the same.
+    side = 1024
+    gen = torch.Generator().manual_seed(2)
+    coord = torch.arange(side, dtype=torch.float64)
+    r = torch.hypot(coord[:, None] - 400.0, coord[None, :] - 600.0)
+    x = 0.5 - 0.3 * torch.exp(-((r / 120.0) ** 2)) + 0.05 * torch.rand(side, side, generator=gen, dtype=torch.float64)
+    x = x[None, None]
+    pooled = FlashRings(side, (400.0, 600.0), None, RADIAL_RINGS, torch.float64)
+    full = FlashRings(side, (400.0, 600.0), None, RADIAL_RINGS, torch.float64, grid=side)
+    assert (pooled.factor, full.factor) == (4, 1)
+    assert float(pooled.energy(x)) == pytest.approx(float(full.energy(x)), rel=POOLED_ENERGY_TOL)
 
 
 def test_energy_is_zero_for_what_does_not_depend_on_the_distance():

@@ -63,6 +63,12 @@ def tilt_energy(
 #: four of them, fine enough to see the rim of a 0.5-wide highlight, coarse enough that
 #: the innermost ring holds ~3 of every 1,000 pixels.
 RADIAL_RINGS = 32
+#: The flash-independence prior sums a map's rings on its block means over this grid (or
+#: the nearest finer one that divides the side): a ring is 1/32 of the side wide, so at
+#: 256 cells a ring is still 8 cells wide and the block means change the ring means by
+#: little (``POOLED_ENERGY_TOL`` in the tests), while the ring sums of a 2048 px map cost
+#: 1/64 of their full-resolution price (the index adds were ~1 s a step at 2048 px).
+RADIAL_GRID = 256
 
 
 def plane_to_grid(x: float, y: float, side: int, plane_size: float) -> tuple[float, float]:
@@ -81,9 +87,11 @@ class FlashRings:
     """Rings around the point under the flash on an ``S x S`` grid, built once and used
     at every refinement step (``energy``).
 
-    A pixel at distance ``r`` (in ring widths ``S / rings`` pixels) belongs to rings
-    ``floor(r)`` and ``floor(r) + 1`` with linear weights, so the ring means, and the
-    energy, change smoothly as a value moves outward; masked-out pixels belong to none.
+    A map is first averaged over ``f x f`` blocks (``f = S // grid``, made to divide
+    ``S``; 1 up to ``grid`` px); a block at distance ``r`` from the flash point (its
+    centre's, in ring widths ``S / rings`` pixels) belongs to rings ``floor(r)`` and
+    ``floor(r) + 1`` with linear weights, so the ring means, and the energy, change
+    smoothly as a value moves outward; masked-out pixels belong to none.
 
     Args:
         side: ``S``, pixels.
@@ -92,6 +100,7 @@ class FlashRings:
         mask: ``[S, S]`` bool (True: a real pixel) or None (all real).
         rings: rings per side (``RADIAL_RINGS``).
         dtype: of the weights (the maps').
+        grid: the block grid's side (``RADIAL_GRID``).
     """
 
     def __init__(
@@ -101,34 +110,44 @@ class FlashRings:
         mask: torch.Tensor | None = None,
         rings: int = RADIAL_RINGS,
         dtype: torch.dtype = torch.float32,
+        grid: int = RADIAL_GRID,
     ):
-        if side < 1 or rings < 1:
-            raise ValueError(f"side and rings must be positive, got {side}, {rings}")
+        if side < 1 or rings < 1 or grid < 1:
+            raise ValueError(f"side, rings and grid must be positive, got {side}, {rings}, {grid}")
         if mask is not None and tuple(mask.shape) != (side, side):
             raise ValueError(f"mask must be [{side}, {side}], got {tuple(mask.shape)}")
-        coord = torch.arange(side, dtype=torch.float64)
+        factor = max(1, side // grid)
+        while side % factor:
+            factor -= 1
+        self.side, self.factor = side, factor
+        cells = side // factor
+        # Block centres in pixel coordinates: block k spans pixels k f .. k f + f - 1.
+        coord = torch.arange(cells, dtype=torch.float64) * factor + (factor - 1) / 2
         drow, dcol = coord[:, None] - float(center[0]), coord[None, :] - float(center[1])
-        r = torch.hypot(drow, dcol)
-        t = r * (rings / side)
+        t = torch.hypot(drow, dcol) * (rings / side)
         inner = t.floor()
         frac = (t - inner).to(dtype)
-        real = torch.ones(side, side, dtype=dtype) if mask is None else mask.to(dtype)
-        self.side = side
+        self.real = None if mask is None else mask.to(dtype)
+        # Each block weighs its share of real pixels; its value is their mean.
+        share = torch.ones(cells, cells, dtype=dtype) if mask is None else area_downsample(self.real, cells)
         self.index = inner.long().flatten()
-        self.w_inner = ((1 - frac) * real).flatten()
-        self.w_outer = (frac * real).flatten()
+        self.w_inner = (1 - frac).flatten()
+        self.w_outer = frac.flatten()
         self.n_rings = int(self.index.max()) + 2
-        self.counts = self._ring_sums(real.flatten()[None] * 0 + 1)[0]
-        self.total = float(real.sum())
+        self.counts = self._ring_sums(share.flatten()[None])[0]
+        self.total = float(share.sum())
         if not self.total > 0:
             raise ValueError("the mask holds no real pixel")
-        # The outward unit vector in the plane's axes (x right = +col, y up = -row), for
-        # the normals' radial slope; 0 at the centre itself.
+        # The outward unit vector per pixel in the plane's axes (x right = +col, y up =
+        # -row), for the normals' radial slope; 0 at the centre itself.
+        pix = torch.arange(side, dtype=torch.float64)
+        prow, pcol = pix[:, None] - float(center[0]), pix[None, :] - float(center[1])
+        r = torch.hypot(prow, pcol)
         safe = r.clamp_min(1e-12)
-        self.outward = torch.stack([dcol / safe, -drow / safe]).where(r > 0, 0.0).to(dtype)
+        self.outward = torch.stack([pcol / safe, -prow / safe]).where(r > 0, 0.0).to(dtype)
 
     def _ring_sums(self, x: torch.Tensor) -> torch.Tensor:
-        """``x`` ``[C, S * S]`` -> weighted sums per ring ``[C, n_rings]``."""
+        """Block values ``x`` ``[C, (S / f)^2]`` -> weighted sums per ring ``[C, n_rings]``."""
         out = x.new_zeros(x.shape[0], self.n_rings)
         out = out.index_add(1, self.index, x * self.w_inner)
         return out.index_add(1, self.index + 1, x * self.w_outer)
@@ -139,12 +158,14 @@ class FlashRings:
         its weight and ``g`` the mean of the real pixels (``centered``; else ``g = 0``: a
         signed quantity whose every ring should average 0). 0 for a map whose ring means
         are equal, at most the map's variance over the real pixels (Cauchy-Schwarz on each
-        ring's weighted mean); its gradient is the same for all the pixels of a ring, so
-        it moves ring means, never the texture within a ring.
+        ring's weighted mean); its gradient is the same for all the pixels of a block
+        (of a ring's share of it), so it moves ring means, never the texture within one.
         """
         if x.dim() != 4 or x.shape[0] != 1 or tuple(x.shape[-2:]) != (self.side, self.side):
             raise ValueError(f"x must be [1, C, {self.side}, {self.side}], got {tuple(x.shape)}")
-        sums = self._ring_sums(x[0].flatten(1))
+        x = x[0] if self.real is None else x[0] * self.real.to(x.dtype)
+        # Block sums over real pixels, in units of a block's pixel count (the share's).
+        sums = self._ring_sums(area_downsample(x, self.side // self.factor).flatten(1))
         counts = self.counts.to(x.dtype)
         means = sums / counts.clamp_min(1e-12)
         if centered:

@@ -138,6 +138,7 @@ def _view_chunks(views: list[int], side: int) -> list[list[int]]:
 #: by up to ``sqrt(H * W)`` rates at once.
 MAX_SHARED_STEP = 10.0
 
+
 def refine_memory_bytes(side: int, views: int) -> int:
     """Estimated peak bytes of ``refine_full_resolution`` at ``side x side`` (float32).
 
