@@ -298,13 +298,15 @@ def refine_full_resolution(
         center = plane_to_grid(float(light_pos[0, 0]), float(light_pos[0, 1]), side, plane)
         rings = FlashRings(side, center, flat_mask)
 
-    def prior_loss() -> torch.Tensor | None:
+    def prior_loss(maps: tuple[torch.Tensor, ...]) -> torch.Tensor | None:
+        """The priors on ``maps`` (``_from_parameters(params).map_tensors()``, built once a
+        step for the views' loss too: sigmoids and their backward at full resolution cost
+        more than the rings)."""
         total = None
         if flatness > 0:
             total = flatness * tilt_energy(params[1], flat_mask)
         if rings is not None:
-            m = _from_parameters(params)
-            named_maps = {"diffuse": m.diffuse, "normal": params[1], "roughness": m.roughness, "specular": m.specular}
+            named_maps = {"diffuse": maps[0], "normal": params[1], "roughness": maps[2], "specular": maps[3]}
             term = radial * flash_independence(rings, {n: named_maps[n] for n in MAP_NAMES if n in radial_maps})
             total = term if total is None else total + term
         return total
@@ -333,11 +335,11 @@ def refine_full_resolution(
         # A map no view's loss reached (routed away from the relit views, photo weight 0)
         # has no gradient to pass on.
         reached = [(m, t.grad) for m, t in zip(maps, leaves) if t.grad is not None]
-        torch.autograd.backward([m for m, _ in reached], [g for _, g in reached])
-        prior = prior_loss()
-        if prior is not None:
-            prior.backward()
+        prior = prior_loss(maps)
+        if prior is not None:  # one backward through the maps' construction for both
+            reached.append((prior, torch.ones_like(prior)))
             value += float(prior.detach())
+        torch.autograd.backward([m for m, _ in reached], [g for _, g in reached])
         return value
 
     with tqdm(total=steps, desc="refine (full resolution)", leave=False, disable=not progress) as bar:
@@ -358,7 +360,7 @@ def refine_full_resolution(
         if steps:
             maps = _from_parameters(params).map_tensors()
             final = sum(float(chunk_loss(maps, step)) for step in plan)
-            prior = prior_loss()
+            prior = prior_loss(maps)
             if prior is not None:
                 final += float(prior)
             if final >= best_loss:
