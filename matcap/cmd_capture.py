@@ -93,6 +93,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="maps the flash-independence prior looks at, comma-separated (default normal,roughness,specular)",
     )
     p.add_argument(
+        "--vignetting",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="fit a smooth radial gain of the photo with the maps (a flash's beam, a lens's vignetting; "
+        "needs diffuse in --radial-maps to take the brightness profile off the diffuse; default off)",
+    )
+    p.add_argument(
         "--falloff",
         choices=("none", "inverse-square"),
         default=None,
@@ -187,6 +194,7 @@ def _config(args):
         "radial": args.radial,
         "relit_maps": parse_map_names(args.relit_maps, "--relit-maps", allow_none=False),
         "radial_maps": parse_map_names(args.radial_maps, "--radial-maps"),
+        "vignetting": args.vignetting,
         "photo_maps": parse_map_names(args.photo_maps, "--photo-maps"),
         "shared_step_maps": parse_map_names(args.shared_step_maps, "--shared-step-maps"),
         "falloff": args.falloff,

@@ -187,6 +187,12 @@ def _add_capture_parser(what) -> None:
         help="comma-separated maps the flash-independence prior looks at (default: the pipeline's)",
     )
     c.add_argument(
+        "--vignetting",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="fit a radial gain of the photo in the refinement (default: the pipeline's)",
+    )
+    c.add_argument(
         "--relit-weight",
         type=float,
         default=None,
@@ -245,6 +251,7 @@ def run_capture(args) -> int:
             "relit_weight": args.relit_weight,
             "relit_maps": parse_map_names(args.relit_maps, "--relit-maps", allow_none=False),
             "radial_maps": parse_map_names(args.radial_maps, "--radial-maps"),
+            "vignetting": args.vignetting,
             "photo_maps": parse_map_names(args.photo_maps, "--photo-maps"),
             "shared_step_maps": parse_map_names(args.shared_step_maps, "--shared-step-maps"),
         }

@@ -140,6 +140,12 @@ def main(argv: list[str] | None = None) -> int:
         help="maps the flash-independence prior looks at, comma-separated (default: the pipeline's)",
     )
     parser.add_argument(
+        "--vignetting",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="fit the photo's radial gain in the refinement (default: the pipeline's)",
+    )
+    parser.add_argument(
         "--shared-step-maps",
         default=None,
         help="maps whose refinement step is shared by their pixels, comma-separated or none (default: the pipeline's)",
@@ -171,6 +177,8 @@ def main(argv: list[str] | None = None) -> int:
         pipeline.config = replace(pipeline.config, radial=args.radial)
     if args.radial_maps is not None:
         pipeline.config = replace(pipeline.config, radial_maps=parse_map_names(args.radial_maps, "--radial-maps"))
+    if args.vignetting is not None:
+        pipeline.config = replace(pipeline.config, vignetting=args.vignetting)
     if args.shared_step_maps is not None:
         pipeline.config = replace(
             pipeline.config, shared_step_maps=parse_map_names(args.shared_step_maps, "--shared-step-maps")
@@ -203,6 +211,8 @@ def main(argv: list[str] | None = None) -> int:
             "flatness": pipeline.config.flatness,
             "radial": pipeline.config.radial,
             "radial_maps": list(pipeline.config.radial_maps),
+            "vignetting": pipeline.config.vignetting,
+            "vignetting_fit": with_relit.provenance["refinement"]["vignetting"],
             "shared_step_maps": list(pipeline.config.shared_step_maps),
         }
         records.append(record)

@@ -65,6 +65,9 @@ DEFAULT_RADIAL = 1.0
 #: own radial profile around any point (cobblestones, lgd/042), and pushing the diffuse's
 #: flat made the roughness compensate with a ring (r ~ 40 px) and specular speckles.
 DEFAULT_RADIAL_MAPS = ("normal", "roughness", "specular")
+#: Whether the refinement fits the photo's radial gain (``matcap.capture.vignetting``);
+#: off until measured.
+DEFAULT_VIGNETTING = False
 #: The maps' names, in ``Material.map_tensors`` order.
 MAP_NAMES = tuple(MAP_CHANNELS)
 #: How the relit views are used (``results/capture_views``: 13 held-out materials, 4
@@ -137,6 +140,10 @@ class CaptureConfig:
             map's mean over a ring around the point under the flash should not depend on
             the ring's radius (no disc or ring centred on the flash).
         radial_maps: the maps that prior looks at (names of ``MAP_NAMES``).
+        vignetting: fit a smooth radial gain of the photo with the maps
+            (``matcap.capture.vignetting``: the flash's beam and the lens's vignetting,
+            which the renderer does not model); it needs ``"diffuse"`` in ``radial_maps``
+            to be told apart from the diffuse's own radial profile.
         falloff: ``"none"`` or ``"inverse-square"`` (package docstring).
         fov: field of view across the photo's long side, degrees (None: EXIF or 45).
         camera: camera (and flash) position ``(x, y, z)``, scene units; overrides ``fov``.
@@ -174,6 +181,7 @@ class CaptureConfig:
     flatness: float = DEFAULT_FLATNESS
     radial: float = DEFAULT_RADIAL
     radial_maps: tuple[str, ...] = DEFAULT_RADIAL_MAPS
+    vignetting: bool = DEFAULT_VIGNETTING
     falloff: str = DEFAULT_FALLOFF
     fov: float | None = None
     camera: tuple[float, float, float] | None = None

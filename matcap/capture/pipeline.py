@@ -277,6 +277,7 @@ class CapturePipeline:
                 targets = relit * ceiling
             photo_ceiling = 1.0 if photo.format != "exr" else None
             history: list[float] = []
+            vignetting: tuple[float, ...] = ()
             refined = init
             if cfg.refine_steps:
                 result = refine_full_resolution(
@@ -285,10 +286,11 @@ class CapturePipeline:
                     photo_ceiling=photo_ceiling if cfg.clip_aware else None,
                     relit_ceiling=ceiling if cfg.clip_aware else None, relit_robust=cfg.relit_robust,
                     relit_maps=cfg.relit_maps, shared_step_maps=cfg.shared_step_maps,
-                    flatness=cfg.flatness, radial=cfg.radial, radial_maps=cfg.radial_maps, lr=cfg.refine_lr,
+                    flatness=cfg.flatness, radial=cfg.radial, radial_maps=cfg.radial_maps, vignetting=cfg.vignetting,
+                    lr=cfg.refine_lr,
                     render_kwargs=scene.render_kwargs, progress=progress,
                 )  # fmt: skip
-                refined, history = result.material, result.history
+                refined, history, vignetting = result.material, result.history, result.vignetting
 
         # 7. The maps on the photo's pixel grid.
         with stage("7 maps to photo"):
@@ -307,7 +309,7 @@ class CapturePipeline:
             renders = torch.stack([frame.to_photo(r) for r in square])
             preview = self._preview(image, relit, refined, estimate, std, square)
 
-        provenance = self._provenance(photo, frame, scene, cfg, stage.timings, history)
+        provenance = self._provenance(photo, frame, scene, cfg, stage.timings, history, vignetting)
         return CaptureOutput(
             material=material,
             estimate=estimate[0],
@@ -327,7 +329,7 @@ class CapturePipeline:
     #: The preview sheet of step 8 (``matcap.capture.output._preview_sheet``).
     _preview = staticmethod(_preview_sheet)
 
-    def _provenance(self, photo, frame, scene, cfg, timings, history) -> dict:
+    def _provenance(self, photo, frame, scene, cfg, timings, history, vignetting=()) -> dict:
         return {
             "made_by": "relight capture (matcap.capture.CapturePipeline)",
             "versions": _package_versions(),
@@ -345,6 +347,8 @@ class CapturePipeline:
                 "steps_run": len(history),
                 "loss_first": history[0] if history else None,
                 "loss_last": history[-1] if history else None,
+                # The photo's fitted radial gain exp(sum_k a_k rho^2k) (matcap.capture.vignetting).
+                "vignetting": list(vignetting) if vignetting else None,
             },
             "timings_s": timings,
             "files": {

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Collection
+from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -16,7 +17,7 @@ from tqdm.auto import tqdm
 import kernels
 from estimator.model import NORMAL_MIN_Z
 from estimator.optim import MapAdam
-from estimator.refine import DEFAULT_TOL, DEFAULT_WINDOW, LOGIT_EPS, RefineResult, converged
+from estimator.refine import DEFAULT_TOL, DEFAULT_WINDOW, LOGIT_EPS, converged
 from kernels.loss import LOG_EPS
 from matcap.capture.config import (
     DEFAULT_REFINE_STEPS,
@@ -27,6 +28,7 @@ from matcap.capture.config import (
 )
 from matcap.capture.priors import FlashRings, flash_independence, plane_to_grid, tilt_energy
 from matcap.capture.scene import area_downsample
+from matcap.capture.vignetting import fit_vignetting, vignetting_basis, vignetting_gain
 from materials.types import Material
 
 
@@ -139,6 +141,16 @@ def _view_chunks(views: list[int], side: int) -> list[list[int]]:
 MAX_SHARED_STEP = 10.0
 
 
+class FullResolutionResult(NamedTuple):
+    """``estimator.refine.RefineResult``'s fields, plus the fitted coefficients of the
+    photo's radial gain (``matcap.capture.vignetting``; empty when not fitted)."""
+
+    material: Material
+    history: list[float]
+    latent_steps: int
+    vignetting: tuple[float, ...] = ()
+
+
 def refine_memory_bytes(side: int, views: int) -> int:
     """Estimated peak bytes of ``refine_full_resolution`` at ``side x side`` (float32).
 
@@ -172,13 +184,14 @@ def refine_full_resolution(
     flatness: float = 0.0,
     radial: float = 0.0,
     radial_maps: Collection[str] = MAP_NAMES,
+    vignetting: bool = False,
     steps: int = DEFAULT_REFINE_STEPS,
     lr: float = REFINE_LR,
     tol: float = DEFAULT_TOL,
     window: int = DEFAULT_WINDOW,
     render_kwargs: dict | None = None,
     progress: bool = False,
-) -> RefineResult:
+) -> FullResolutionResult:
     """Fit per-pixel maps at the photo's resolution to the photo and to lower-resolution
     relit views, through the Warp renderer.
 
@@ -216,10 +229,16 @@ def refine_full_resolution(
             flash_independence(rings, maps)`` (0: none): the radial profile of
             ``radial_maps`` (``MAP_NAMES``) around the point under the flash (row 0 of
             ``light_pos``), over the real pixels.
+        vignetting: fit a smooth radial gain of the photo's view about the same point
+            with the maps (``matcap.capture.vignetting``: a real flash's beam, a lens's
+            vignetting); it starts at ``fit_vignetting`` of the initial diffuse (whose
+            smooth radial brightness is divided out), and its coefficients come back in
+            the result. The diffuse's term of the flash-independence prior keeps the
+            diffuse from taking that profile back.
         render_kwargs: ``kernels.render`` keywords (preset, falloff, intensity).
 
     Returns:
-        ``RefineResult(material [1, C, S, S], history, 0)``.
+        ``FullResolutionResult(material [1, C, S, S], history, 0, vignetting)``.
     """
     render_kwargs = dict(render_kwargs or {"preset": "dgrsise"})
     k = relit.shape[0]
@@ -281,10 +300,22 @@ def refine_full_resolution(
             relit_images = render(fixed, chunk[n:]) if chunk[n:] else None
         loss = maps[0].new_zeros(())
         if photo_target is not None:
-            loss = loss + photo_target.loss(photo_images[0]) * (photo_weight / total)
+            photo_render = photo_images[0] if gain is None else photo_images[0] * vignetting_gain(gain, basis)
+            loss = loss + photo_target.loss(photo_render) * (photo_weight / total)
         if relit_target is not None:
             loss = loss + relit_target.loss(area_downsample(relit_images, relit_size)) * relit_share
         return loss
+
+    plane = render_kwargs.get("plane_size") or kernels.get_preset(render_kwargs.get("preset", "dgrsise")).plane_size
+    center = plane_to_grid(float(light_pos[0, 0]), float(light_pos[0, 1]), side, plane)
+    gain, basis = None, None
+    if vignetting and photo_weight > 0:
+        # Start from the initial diffuse's smooth radial brightness moved into the gain.
+        basis = vignetting_basis(side, center)
+        start = fit_vignetting(material.diffuse, basis, None if bool(photo_mask.all()) else photo_mask)
+        diffuse = (material.diffuse / vignetting_gain(start, basis)).clamp(0, 1)
+        material = Material(diffuse, material.normal, material.roughness, material.specular)
+        gain = start.clone().requires_grad_(True)
 
     params = _to_parameters(material)
     # The real pixels, for the prior and the shared steps' mean (padding has no gradient
@@ -292,11 +323,7 @@ def refine_full_resolution(
     # photo), which spares a full-resolution product per step.
     flat_mask = None if bool(photo_mask.all()) else photo_mask
 
-    rings = None
-    if radial > 0 and radial_maps:
-        plane = render_kwargs.get("plane_size") or kernels.get_preset(render_kwargs.get("preset", "dgrsise")).plane_size
-        center = plane_to_grid(float(light_pos[0, 0]), float(light_pos[0, 1]), side, plane)
-        rings = FlashRings(side, center, flat_mask)
+    rings = FlashRings(side, center, flat_mask) if radial > 0 and radial_maps else None
 
     def prior_loss(maps: tuple[torch.Tensor, ...]) -> torch.Tensor | None:
         """The priors on ``maps`` (``_from_parameters(params).map_tensors()``, built once a
@@ -319,10 +346,13 @@ def refine_full_resolution(
     opts: list[torch.optim.Optimizer] = []
     if per_pixel:
         opts.append(torch.optim.Adam(per_pixel, lr=lr, fused=True))
+    if gain is not None:
+        opts.append(torch.optim.Adam([gain], lr=lr))
     if shared:
         opts.append(MapAdam(shared, lr=lr, mask=flat_mask, max_step=MAX_SHARED_STEP))
     history: list[float] = []
-    best, best_loss = [p.detach().clone() for p in params], float("inf")
+    fitted = params if gain is None else [*params, gain]
+    best, best_loss = [p.detach().clone() for p in fitted], float("inf")
 
     def loss_and_grad() -> float:
         maps = _from_parameters(params).map_tensors()
@@ -348,7 +378,7 @@ def refine_full_resolution(
                 opt.zero_grad(set_to_none=True)
             value = loss_and_grad()
             if value < best_loss:  # the loss belongs to the parameters before this step
-                best_loss, best = value, [p.detach().clone() for p in params]
+                best_loss, best = value, [p.detach().clone() for p in fitted]
             for opt in opts:
                 opt.step()
             history.append(value)
@@ -364,6 +394,7 @@ def refine_full_resolution(
             if prior is not None:
                 final += float(prior)
             if final >= best_loss:
-                for p, b in zip(params, best):
+                for p, b in zip(fitted, best):
                     p.copy_(b)
-        return RefineResult(_from_parameters(params), history, 0)
+        coefficients = () if gain is None else tuple(float(a) for a in gain)
+        return FullResolutionResult(_from_parameters(params), history, 0, coefficients)

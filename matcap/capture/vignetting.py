@@ -1,0 +1,81 @@
+"""A smooth radial gain on the photo, fitted in the refinement with the maps
+(``CaptureConfig.vignetting``): what a real flash photo has and the renderer does not.
+
+The renderer's flash is an isotropic point light (with the 1/d^2 falloff when asked) and
+its camera has no vignetting. A phone's flash has a beam narrower than a hemisphere and
+its lens darkens the corners, so a real photo falls off from the point under the flash
+faster than the render of a flat material: on the 9 real development photos the
+refined diffuse map's ring means fell by 0.3-0.5 in log units from the centre to the
+corners (the maps had absorbed the optics). The gain
+
+    g(rho) = exp(sum_k a_k rho^(2k)),  k = 1 .. VIGNETTING_TERMS,
+
+with ``rho`` the distance to the point under the flash in half-sides of the grid (1 at
+the middle of an edge, sqrt 2 at a corner of a centred photo), multiplies the render of
+the photo's view only (the relit views are the relighter's, in its own convention), and
+its coefficients ``a`` are fitted with the maps, starting at 0 (no gain). A gain and a
+radial profile of the diffuse explain the photo equally well, so it is the diffuse's term
+of the flash-independence prior (``matcap.capture.priors``) that keeps the fit on the
+gain; even powers keep ``g`` smooth at the flash point. The gain starts where a
+least-squares fit of the initial diffuse's log brightness puts it (``fit_vignetting``),
+with that part divided out of the diffuse: started at 0 beside a diffuse that has
+absorbed the falloff, with the maps' Adam rate, the coefficients stayed within +-0.3 in
+100 steps on the real photos (a 10x rate made the loss of a synthetic test unstable).
+"""
+
+from __future__ import annotations
+
+import torch
+
+#: Terms of the log-gain polynomial in rho^2: rho^2 and rho^4. Two are enough for a
+#: cos^n-like beam and a lens's cos^4-like vignetting over a 45-degree field (both smooth
+#: and monotone there), few enough not to follow a texture's own radial profile.
+VIGNETTING_TERMS = 2
+#: Added to the diffuse's luminance before the log in ``fit_vignetting`` (a black pixel).
+FIT_LOG_EPS = 1e-3
+
+
+def vignetting_basis(side: int, center: tuple[float, float], terms: int = VIGNETTING_TERMS) -> torch.Tensor:
+    """``[terms, side, side]`` float32: ``rho^(2k)`` for k = 1 .. terms, ``rho`` the
+    distance of each pixel centre from ``center`` (fractional ``(row, col)``, e.g.
+    ``matcap.capture.priors.plane_to_grid``) in units of ``side / 2`` pixels.
+
+    >>> b = vignetting_basis(4, (1.5, 1.5))
+    >>> tuple(b.shape), round(float(b[0, 0, 0]), 4), round(float(b[1, 0, 0]), 4)
+    ((2, 4, 4), 1.125, 1.2656)
+    """
+    if side < 1 or terms < 1:
+        raise ValueError(f"side and terms must be positive, got {side}, {terms}")
+    coord = torch.arange(side, dtype=torch.float64)
+    rho2 = ((coord[:, None] - center[0]).square() + (coord[None, :] - center[1]).square()) / (side / 2) ** 2
+    return torch.stack([rho2**k for k in range(1, terms + 1)]).float()
+
+
+def fit_vignetting(diffuse: torch.Tensor, basis: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+    """``[terms]``: the least-squares coefficients of ``log(luminance(diffuse))`` over the
+    ``basis`` plus a constant, on the pixels of ``mask`` (``[S, S]`` bool, None: all):
+    the smooth radial part of a diffuse map's brightness, which the refinement starts the
+    gain at (and divides out of the diffuse), since an estimator run on a vignetted photo
+    bakes the vignetting into its diffuse.
+
+    ``diffuse``: ``[1, 3, S, S]`` linear, Rec. 709 primaries.
+    """
+    lum = (diffuse[0].double() * torch.tensor([0.2126, 0.7152, 0.0722], dtype=torch.float64)[:, None, None]).sum(0)
+    y = torch.log(lum + FIT_LOG_EPS).flatten()
+    design = torch.cat([torch.ones(1, y.numel(), dtype=torch.float64), basis.double().flatten(1)]).T
+    if mask is not None:
+        keep = mask.flatten()
+        design, y = design[keep], y[keep]
+    solution = torch.linalg.lstsq(design, y[:, None]).solution[:, 0]
+    return solution[1:].to(basis.dtype)
+
+
+def vignetting_gain(coefficients: torch.Tensor, basis: torch.Tensor) -> torch.Tensor:
+    """``[side, side]``: ``exp(sum_k coefficients[k] * basis[k])``, the gain multiplying the
+    photo's render (linear radiance, any colour space: one factor for all channels).
+
+    ``coefficients``: ``[terms]`` (differentiable); ``basis``: ``vignetting_basis``'s.
+    """
+    if coefficients.shape != basis.shape[:1]:
+        raise ValueError(f"coefficients must be [{basis.shape[0]}], got {tuple(coefficients.shape)}")
+    return torch.exp(torch.tensordot(coefficients, basis, dims=1))
