@@ -46,6 +46,11 @@ Data sets (``SETS``):
 - ``textures``: every material folder under ``textures`` (``load_texture_folder``:
   diffuse, normal, roughness, specular PNGs), e.g. ``../shared/data/real-dev/materials``;
   the textures' own resolution, cropped to ``size`` at the centre when larger.
+
+With ``photo_vignetting`` the photo (not the ground-truth views) is multiplied by the
+darkening gain ``matcap.capture.vignetting.vignetting_gain`` of those coefficients about
+its centre before the 8-bit step: a phone flash's beam and lens vignetting, which real
+photos have and the renderer does not; the maps are still scored against the true ones.
 """
 
 from __future__ import annotations
@@ -65,6 +70,7 @@ import kernels
 from estimator.evaluate import highlight_mask
 from estimator.model import SVBRDFEstimator
 from matcap.capture import CaptureConfig, CaptureOutput, CapturePipeline, area_downsample, photo_from_tensor
+from matcap.capture.vignetting import vignetting_basis, vignetting_gain
 from materials import metrics
 from materials.camera import camera_from_fov
 from materials.io.photo import MIN_PHOTO_SIDE
@@ -139,6 +145,8 @@ class CaptureEvalConfig:
         inria: folder of INRIA PNGs (None: synthesised from held-out seeds).
         capture: the pipeline's settings (``relit`` is set per run).
         flip_every: FLIP on every this-many-th novel light (FLIP is the slow metric).
+        photo_vignetting: coefficients of the radial gain applied to the photo (module
+            docstring; each <= 0); empty: none.
     """
 
     sets: tuple[str, ...] = ("procedural", "inria")
@@ -149,8 +157,11 @@ class CaptureEvalConfig:
     inria: str | None = None
     capture: CaptureConfig = field(default_factory=CaptureConfig)
     flip_every: int = 8
+    photo_vignetting: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
+        if not all(math.isfinite(a) and a <= 0 for a in self.photo_vignetting):
+            raise ValueError(f"photo_vignetting must be finite numbers <= 0, got {self.photo_vignetting}")
         unknown = [s for s in self.sets if s not in SETS] + [r for r in self.runs if r not in RUNS]
         if unknown:
             raise ValueError(f"unknown sets or runs {unknown}; sets: {', '.join(SETS)}; runs: {', '.join(RUNS)}")
@@ -370,7 +381,12 @@ def evaluate(
     bar = tqdm(desc="eval capture", unit="run", disable=not progress)
     for item in load_materials(cfg):
         flash = flash_photo(item.material, camera)
-        photo = photo_from_tensor(as_8bit(flash), f"{item.name} (rendered)", fmt="png")
+        seen = flash
+        if cfg.photo_vignetting:
+            side = flash.shape[-1]
+            basis = vignetting_basis(side, ((side - 1) / 2, (side - 1) / 2), len(cfg.photo_vignetting))
+            seen = flash * vignetting_gain(torch.tensor(cfg.photo_vignetting), basis)
+        photo = photo_from_tensor(as_8bit(seen), f"{item.name} (rendered)", fmt="png")
         for run in cfg.runs:
             kind, k = RUNS[run]
             relighter = GroundTruthRelighter(item.material) if kind == "gt" else relighters.get(kind) if kind else None

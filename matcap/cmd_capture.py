@@ -94,10 +94,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--vignetting",
-        action=argparse.BooleanOptionalAction,
+        choices=("off", "photo", "all"),
         default=None,
-        help="fit a smooth radial gain of the photo with the maps (a flash's beam, a lens's vignetting; "
-        "needs diffuse in --radial-maps to take the brightness profile off the diffuse; default off)",
+        help="fit a smooth darkening radial gain (a flash's beam, a lens's vignetting) with the maps, "
+        "on the render of the photo or of all views (default off)",
     )
     p.add_argument(
         "--falloff",

@@ -188,9 +188,16 @@ def _add_capture_parser(what) -> None:
     )
     c.add_argument(
         "--vignetting",
-        action=argparse.BooleanOptionalAction,
+        choices=("off", "photo", "all"),
         default=None,
-        help="fit a radial gain of the photo in the refinement (default: the pipeline's)",
+        help="which views the refinement's fitted radial gain multiplies (default: the pipeline's)",
+    )
+    c.add_argument(
+        "--photo-vignetting",
+        default=None,
+        metavar="A1,A2",
+        help="darken the rendered photos by the radial gain exp(A1 rho^2 + A2 rho^4) about their centre "
+        "(rho in half-sides; each A <= 0), as a flash's beam and a lens do (default none)",
     )
     c.add_argument(
         "--relit-weight",
@@ -275,6 +282,7 @@ def run_capture(args) -> int:
             textures=None if args.textures is None else str(args.textures),
             inria=None if args.inria is None else str(args.inria),
             capture=capture,
+            photo_vignetting=() if args.photo_vignetting is None else _floats(args.photo_vignetting),
         )
     except ValueError as exc:
         raise UsageError(str(exc)) from None
@@ -333,6 +341,14 @@ def _checkpoints(items: list[str]) -> dict[str, str]:
             raise UsageError(f"--checkpoint {item!r} must be NAME=PATH")
         out[name] = path
     return out
+
+
+def _floats(text: str) -> tuple[float, ...]:
+    """``--photo-vignetting`` value -> its numbers (the range is the config's to check)."""
+    try:
+        return tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise UsageError(f"--photo-vignetting {text!r} must be comma-separated numbers, e.g. -0.3,-0.05") from None
 
 
 def _steps_list(text: str | None) -> list[int] | None:

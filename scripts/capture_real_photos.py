@@ -81,6 +81,28 @@ def flash_profile(x: torch.Tensor, frame, camera: torch.Tensor) -> float:
     return math.sqrt(float((n[n > 0] * (means - v.mean()).square()).sum() / v.numel()))
 
 
+#: Centre disc and outer region of ``edge_drop``, plane units (plane side 4, half-side 2):
+#: the disc is ``DISC``; beyond ``EDGE`` lie the outer quarter of the half-side and the corners.
+EDGE = 1.5
+
+
+def edge_drop(diffuse: torch.Tensor, frame, camera: torch.Tensor) -> float:
+    """How much darker ``diffuse [3, H, W]`` (photo grid, linear) is far from the point
+    under the flash than near it: mean ``log(luminance + PROFILE_EPS)`` of the pixels
+    beyond ``EDGE`` minus that of the disc ``DISC`` (natural-log units; 0 for a map with
+    no brightness falloff, negative where the map has absorbed a flash beam's or a lens's
+    falloff). Unlike ``flash_profile`` it is signed and looks only at the two ends."""
+    h, w = diffuse.shape[-2:]
+    rows, cols = torch.meshgrid(
+        torch.arange(h, dtype=torch.float32), torch.arange(w, dtype=torch.float32), indexing="ij"
+    )
+    x, y = frame.pixel_to_plane(rows, cols)
+    r = torch.hypot(x - camera[0], y - camera[1])
+    lum = (diffuse.double() * torch.tensor([0.2126, 0.7152, 0.0722], dtype=torch.float64)[:, None, None]).sum(0)
+    log_lum = torch.log(lum + PROFILE_EPS)
+    return float(log_lum[r >= EDGE].mean() - log_lum[r <= DISC].mean())
+
+
 def low_tilt_deg(normal: torch.Tensor) -> float:
     """RMS angle, degrees, of the low-pass normal of ``normal [3, H, W]`` (unit, tangent
     space): ``atan(sqrt(tilt_energy))`` of its slopes (``matcap.capture.priors``), the
@@ -141,9 +163,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--vignetting",
-        action=argparse.BooleanOptionalAction,
+        choices=("off", "photo", "all"),
         default=None,
-        help="fit the photo's radial gain in the refinement (default: the pipeline's)",
+        help="which views the refinement's fitted radial gain multiplies (default: the pipeline's)",
     )
     parser.add_argument(
         "--shared-step-maps",
@@ -256,6 +278,7 @@ def measure(photo: torch.Tensor, runs: dict, camera: torch.Tensor) -> dict:
     for run, (material, frame) in runs.items():
         for name in ("diffuse", "roughness", "specular"):
             record[f"profile_{name}_{run}"] = round(flash_profile(getattr(material, name), frame, camera), 3)
+        record[f"edge_drop_diffuse_{run}"] = round(edge_drop(material.diffuse, frame, camera), 3)
         at, elsewhere = crease_deg(material.normal, frame, camera)
         record[f"crease_deg_{run}"], record[f"crease_deg_{run}_elsewhere"] = round(at, 2), round(elsewhere, 2)
     return record
@@ -286,6 +309,8 @@ def remeasure(path: Path, work: Path) -> dict:
         "flatness": settings["flatness"],
         "radial": settings.get("radial", 0.0),
         "radial_maps": settings.get("radial_maps", []),
+        "vignetting": settings.get("vignetting", "off"),
+        "vignetting_fit": prov["relit"]["refinement"].get("vignetting"),
         "shared_step_maps": settings.get("shared_step_maps", []),
     }
 

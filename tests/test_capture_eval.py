@@ -5,6 +5,7 @@ of every row end to end, and the command line's checks."""
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import replace
 from types import SimpleNamespace
 
@@ -42,6 +43,9 @@ from relight.interface import get_relighter
 #: encoding; diffuse and specular are sRGB-encoded, whose inverse has slope <= 1 / 12.92 * ...
 #: at most 2.4 / 1.055 * ((c + 0.055) / 1.055)^1.4 <= 2.28 per code unit: 2.28 * 0.5 / 255.
 MAP_8BIT_TOL = 2.28 * 0.5 / 255 + 1e-6
+#: A vignetted photo over the clean one, relative: both rounded to 8 bits after the tone
+#: map, one code step is <= 2% of a pixel brighter than code 50; 4% covers two roundings.
+VIGNETTED_8BIT_TOL = 0.04
 #: psnr_from_mse's ceiling for an exact match: -10 log10(MSE_FLOOR = 1e-10).
 EXACT_PSNR = 100.0
 
@@ -154,6 +158,32 @@ def test_every_row_end_to_end_with_tiny_models(tiny_estimator, tmp_path):
         evaluate(cfg, tiny_estimator, {}, progress=False)
 
 
+def test_photo_vignetting_darkens_the_photo_the_pipeline_sees(tiny_estimator, monkeypatch):
+    # The photo handed to the pipeline is the flash render times the gain about its
+    # centre (then 8 bits): the corner over the centre falls by the gain's ratio.
+    import matcap.capture_eval as capture_eval
+
+    seen = []
+
+    class Recording(capture_eval.CapturePipeline):
+        def __call__(self, photo, **kwargs):
+            seen.append(photo.image.clone())
+            return super().__call__(photo, **kwargs)
+
+    monkeypatch.setattr(capture_eval, "CapturePipeline", Recording)
+    cfg = CaptureEvalConfig(
+        sets=("procedural",), count=1, size=64, runs=("alone",), capture=CaptureConfig(refine_steps=0), flip_every=64
+    )
+    evaluate(cfg, tiny_estimator, {}, progress=False)
+    evaluate(replace(cfg, photo_vignetting=(-0.3, -0.05)), tiny_estimator, {}, progress=False)
+    clean, dark = seen
+    ratio = dark / clean.clamp_min(1e-6)
+    corner_gain = math.exp(-0.3 * 2 * (63 / 64) ** 2 - 0.05 * 4 * (63 / 64) ** 4)  # rho^2 = 2 (63/64)^2 at a corner
+    # 8-bit rounding of the photo: a code step is under 2% of these pixels' values.
+    assert float(ratio[:, 0, 0].mean()) == pytest.approx(corner_gain, rel=VIGNETTED_8BIT_TOL)
+    assert float(ratio[:, 31:33, 31:33].mean()) == pytest.approx(1.0, rel=VIGNETTED_8BIT_TOL)
+
+
 @pytest.fixture(scope="module")
 def estimator_folder(tmp_path_factory, tiny_estimator):
     folder = tmp_path_factory.mktemp("est") / "tiny"
@@ -167,8 +197,10 @@ def test_cli_eval_capture_writes_the_report(tmp_path, estimator_folder, capsys):
     argv += ["--count", "1", "--size", "64", "--refine", "1", "--estimator", str(estimator_folder)]
     argv += ["--photo-maps", "normal", "--relit-maps", "roughness,specular", "--relit-weight", "0.5"]
     argv += ["--shared-step-maps", "none", "--radial", "2", "--radial-maps", "normal"]
+    argv += ["--vignetting", "all", "--photo-vignetting", "-0.3,-0.05"]
     assert main(argv) == 0
     data = json.loads((out / "capture_eval.json").read_text())
+    assert data["config"]["photo_vignetting"] == [-0.3, -0.05] and data["config"]["capture"]["vignetting"] == "all"
     capture = data["config"]["capture"]  # the flags reach the pipeline's settings
     assert (capture["photo_maps"], capture["relit_maps"], capture["relit_weight"]) == (
         ["normal"],
@@ -198,6 +230,8 @@ def test_cli_eval_capture_writes_the_report(tmp_path, estimator_folder, capsys):
         (["--shared-step-maps", "normal,normal"], "--shared-step-maps takes distinct names"),
         (["--relit-maps", "none"], "--relit-maps takes distinct names"),
         (["--radial-maps", "gloss"], "--radial-maps takes distinct names"),
+        (["--photo-vignetting", "0.3,x"], "must be comma-separated numbers"),
+        (["--photo-vignetting", "0.3"], "photo_vignetting must be finite numbers <= 0"),
         (["--radial", "-1"], "radial must be a finite number >= 0"),
         (["--relit-weight", "-1"], "relit_weight must be a finite number >= 0"),
         (["--runs", "alone,diffusion", "--checkpoint", "diffusion=/nonexistent"], "/nonexistent"),

@@ -65,9 +65,10 @@ DEFAULT_RADIAL = 1.0
 #: own radial profile around any point (cobblestones, lgd/042), and pushing the diffuse's
 #: flat made the roughness compensate with a ring (r ~ 40 px) and specular speckles.
 DEFAULT_RADIAL_MAPS = ("normal", "roughness", "specular")
-#: Whether the refinement fits the photo's radial gain (``matcap.capture.vignetting``);
-#: off until measured.
-DEFAULT_VIGNETTING = False
+#: Which views the refinement's fitted radial gain multiplies (``matcap.capture.vignetting``):
+#: ``VIGNETTING_VIEWS``; off until measured.
+VIGNETTING_VIEWS = ("off", "photo", "all")
+DEFAULT_VIGNETTING = "off"
 #: The maps' names, in ``Material.map_tensors`` order.
 MAP_NAMES = tuple(MAP_CHANNELS)
 #: How the relit views are used (``results/capture_views``: 13 held-out materials, 4
@@ -140,10 +141,11 @@ class CaptureConfig:
             map's mean over a ring around the point under the flash should not depend on
             the ring's radius (no disc or ring centred on the flash).
         radial_maps: the maps that prior looks at (names of ``MAP_NAMES``).
-        vignetting: fit a smooth radial gain of the photo with the maps
+        vignetting: fit a smooth darkening radial gain of the photo with the maps
             (``matcap.capture.vignetting``: the flash's beam and the lens's vignetting,
-            which the renderer does not model); it needs ``"diffuse"`` in ``radial_maps``
-            to be told apart from the diffuse's own radial profile.
+            which the renderer does not model): ``"off"``, on the render of the
+            ``"photo"`` only, or on ``"all"`` views (the relit views are made from the
+            photo and carry its darkening).
         falloff: ``"none"`` or ``"inverse-square"`` (package docstring).
         fov: field of view across the photo's long side, degrees (None: EXIF or 45).
         camera: camera (and flash) position ``(x, y, z)``, scene units; overrides ``fov``.
@@ -181,7 +183,7 @@ class CaptureConfig:
     flatness: float = DEFAULT_FLATNESS
     radial: float = DEFAULT_RADIAL
     radial_maps: tuple[str, ...] = DEFAULT_RADIAL_MAPS
-    vignetting: bool = DEFAULT_VIGNETTING
+    vignetting: str = DEFAULT_VIGNETTING
     falloff: str = DEFAULT_FALLOFF
     fov: float | None = None
     camera: tuple[float, float, float] | None = None
@@ -220,6 +222,10 @@ class CaptureConfig:
                 f"{name} must be distinct names of {', '.join(MAP_NAMES)}, got {value!r}",
             )
         need(bool(self.relit_maps), "relit_maps cannot be empty (use relit_weight=0 to ignore the relit views)")
+        need(
+            self.vignetting in VIGNETTING_VIEWS,
+            f"vignetting must be one of {', '.join(VIGNETTING_VIEWS)}, got {self.vignetting!r}",
+        )
         need(self.falloff in FALLOFFS, f"falloff must be one of {', '.join(FALLOFFS)}, got {self.falloff!r}")
         need(self.fov is None or 0 < self.fov < 180, f"field of view must lie in (0, 180) degrees, got {self.fov}")
         if self.camera is not None:

@@ -184,7 +184,7 @@ def refine_full_resolution(
     flatness: float = 0.0,
     radial: float = 0.0,
     radial_maps: Collection[str] = MAP_NAMES,
-    vignetting: bool = False,
+    vignetting: str = "off",
     steps: int = DEFAULT_REFINE_STEPS,
     lr: float = REFINE_LR,
     tol: float = DEFAULT_TOL,
@@ -229,12 +229,12 @@ def refine_full_resolution(
             flash_independence(rings, maps)`` (0: none): the radial profile of
             ``radial_maps`` (``MAP_NAMES``) around the point under the flash (row 0 of
             ``light_pos``), over the real pixels.
-        vignetting: fit a smooth radial gain of the photo's view about the same point
-            with the maps (``matcap.capture.vignetting``: a real flash's beam, a lens's
-            vignetting); it starts at ``fit_vignetting`` of the initial diffuse (whose
-            smooth radial brightness is divided out), and its coefficients come back in
-            the result. The diffuse's term of the flash-independence prior keeps the
-            diffuse from taking that profile back.
+        vignetting: fit a smooth darkening radial gain about the same point with the
+            maps (``matcap.capture.vignetting``: a real flash's beam, a lens's
+            vignetting), multiplying the render of the ``"photo"`` or of ``"all"`` views
+            (``"off"``: none); it starts at ``fit_vignetting`` of the initial diffuse
+            (whose smooth radial brightness is divided out), and its coefficients come
+            back in the result.
         render_kwargs: ``kernels.render`` keywords (preset, falloff, intensity).
 
     Returns:
@@ -303,13 +303,17 @@ def refine_full_resolution(
             photo_render = photo_images[0] if gain is None else photo_images[0] * vignetting_gain(gain, basis)
             loss = loss + photo_target.loss(photo_render) * (photo_weight / total)
         if relit_target is not None:
+            if gain is not None and vignetting == "all":
+                relit_images = relit_images * vignetting_gain(gain, basis)
             loss = loss + relit_target.loss(area_downsample(relit_images, relit_size)) * relit_share
         return loss
 
     plane = render_kwargs.get("plane_size") or kernels.get_preset(render_kwargs.get("preset", "dgrsise")).plane_size
     center = plane_to_grid(float(light_pos[0, 0]), float(light_pos[0, 1]), side, plane)
     gain, basis = None, None
-    if vignetting and photo_weight > 0:
+    if vignetting not in ("off", "photo", "all"):
+        raise ValueError(f"vignetting must be off, photo or all, got {vignetting!r}")
+    if vignetting != "off" and photo_weight > 0:
         # Start from the initial diffuse's smooth radial brightness moved into the gain.
         basis = vignetting_basis(side, center)
         start = fit_vignetting(material.diffuse, basis, None if bool(photo_mask.all()) else photo_mask)
@@ -381,6 +385,9 @@ def refine_full_resolution(
                 best_loss, best = value, [p.detach().clone() for p in fitted]
             for opt in opts:
                 opt.step()
+            if gain is not None:
+                with torch.no_grad():
+                    gain.clamp_(max=0.0)  # a gain that only darkens (matcap.capture.vignetting)
             history.append(value)
             bar.update(1)
             bar.set_postfix(loss=f"{value:.5f}")

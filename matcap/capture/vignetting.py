@@ -12,18 +12,28 @@ corners (the maps had absorbed the optics). The gain
 
 with ``rho`` the distance to the point under the flash in half-sides of the grid (1 at
 the middle of an edge, sqrt 2 at a corner of a centred photo), multiplies the render of
-the photo's view only (the relit views are the relighter's, in its own convention), and
-its coefficients ``a`` are fitted with the maps, starting at 0 (no gain). A gain and a
-radial profile of the diffuse explain the photo equally well, so it is the diffuse's term
-of the flash-independence prior (``matcap.capture.priors``) that keeps the fit on the
-gain; even powers keep ``g`` smooth at the flash point. The gain starts where a
-least-squares fit of the initial diffuse's log brightness puts it (``fit_vignetting``),
-with that part divided out of the diffuse: started at 0 beside a diffuse that has
-absorbed the falloff, with the maps' Adam rate, the coefficients stayed within +-0.3 in
-100 steps on the real photos (a 10x rate made the loss of a synthetic test unstable).
+the photo's view, or of every view (``CaptureConfig.vignetting`` ``"photo"`` / ``"all"``):
+the relit views are made from the photo by a relighter trained without vignetting, which
+takes the darkening for the material's and carries it into every relit image, so on the
+photo alone the relit views pull the falloff back into the diffuse (a synthetic test:
+corner-to-centre log diffuse -0.31 without the gain, -0.22 with it on the photo, 0.00 on
+all views). Its coefficients ``a`` are fitted with the maps and held at ``a_k <= 0`` (a
+gain that only darkens away from the flash point, as a beam and a lens do; projected
+after each step): unconstrained, on the real photos the fit also took the materials' own
+radial content (a sign brighter at its edges got a gain rising outwards). Even powers
+keep ``g`` smooth at the flash point.
+
+A gain and a radial profile of the diffuse explain the views equally well, so where the
+fit ends depends on where it starts: at a least-squares fit of the initial diffuse's log
+brightness (``fit_vignetting``), with that part divided out of the diffuse. Started at 0
+beside a diffuse that has absorbed the falloff, with the maps' Adam rate, the
+coefficients stayed within +-0.3 in 100 steps on the real photos (a 10x rate made the
+loss of a synthetic test unstable).
 """
 
 from __future__ import annotations
+
+import itertools
 
 import torch
 
@@ -52,22 +62,39 @@ def vignetting_basis(side: int, center: tuple[float, float], terms: int = VIGNET
 
 
 def fit_vignetting(diffuse: torch.Tensor, basis: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
-    """``[terms]``: the least-squares coefficients of ``log(luminance(diffuse))`` over the
-    ``basis`` plus a constant, on the pixels of ``mask`` (``[S, S]`` bool, None: all):
-    the smooth radial part of a diffuse map's brightness, which the refinement starts the
-    gain at (and divides out of the diffuse), since an estimator run on a vignetted photo
-    bakes the vignetting into its diffuse.
+    """``[terms]``, each <= 0: the least-squares coefficients of
+    ``log(luminance(diffuse))`` over the ``basis`` plus a constant, on the pixels of
+    ``mask`` (``[S, S]`` bool, None: all), under the darkening constraint (module
+    docstring): the smooth radial falloff of a diffuse map's brightness, which the
+    refinement starts the gain at (and divides out of the diffuse), since an estimator
+    run on a vignetted photo bakes the vignetting into its diffuse. A diffuse brighter
+    away from the flash point gets 0 (that is the material's, not the optics').
+
+    The constrained problem is solved exactly by trying every set of free coefficients
+    (the others held at 0: 2^terms small solves) and keeping the best feasible one.
 
     ``diffuse``: ``[1, 3, S, S]`` linear, Rec. 709 primaries.
     """
     lum = (diffuse[0].double() * torch.tensor([0.2126, 0.7152, 0.0722], dtype=torch.float64)[:, None, None]).sum(0)
     y = torch.log(lum + FIT_LOG_EPS).flatten()
-    design = torch.cat([torch.ones(1, y.numel(), dtype=torch.float64), basis.double().flatten(1)]).T
+    terms = basis.double().flatten(1)
     if mask is not None:
         keep = mask.flatten()
-        design, y = design[keep], y[keep]
-    solution = torch.linalg.lstsq(design, y[:, None]).solution[:, 0]
-    return solution[1:].to(basis.dtype)
+        y, terms = y[keep], terms[:, keep]
+    best, best_residual = torch.zeros(basis.shape[0], dtype=torch.float64), float("inf")
+    for free in itertools.product((False, True), repeat=basis.shape[0]):
+        index = [k for k, f in enumerate(free) if f]
+        design = torch.cat([torch.ones(1, y.numel(), dtype=torch.float64), terms[index]]).T
+        solution = torch.linalg.lstsq(design, y[:, None]).solution[:, 0]
+        if bool((solution[1:] > 0).any()):
+            continue
+        residual = float((design @ solution - y).square().sum())
+        if residual < best_residual:
+            best_residual, best = (
+                residual,
+                torch.zeros_like(best).index_copy(0, torch.tensor(index, dtype=torch.long), solution[1:]),
+            )
+    return best.to(basis.dtype)
 
 
 def vignetting_gain(coefficients: torch.Tensor, basis: torch.Tensor) -> torch.Tensor:
