@@ -111,7 +111,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=None,
         metavar="PX",
         help="side of the relit views, a multiple of 64 (default 64, the networks' size); larger "
-        "ones are relit in 64 px tiles and refined against at that size",
+        "ones are relit from the whole plane at 64 px with the photo's detail carried at full size "
+        "(relight.detail) and refined against at that size",
     )
     p.add_argument(
         "--estimate-size",

@@ -87,6 +87,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "same run as rows 'NAME (N steps)'",
     )
     r.add_argument(
+        "--large",
+        default=None,
+        metavar="MODE[,MODE...]",
+        help="how network relighters treat a photo larger than their native 64 px: global (the "
+        "whole plane at 64 px, detail from the Lambertian re-shading), tiles (64 px windows; "
+        "diffusion), whole (fully convolutional; bieron); several evaluate each in the same run "
+        "as rows 'NAME (MODE)' (default: each relighter's own, global for diffusion, whole for bieron)",
+    )
+    r.add_argument(
         "--domain",
         choices=("paper", "capture"),
         default="paper",
@@ -389,6 +398,42 @@ def _expand_steps(relighters: dict, steps: list[int]) -> dict:
     return out
 
 
+def _large_list(text: str | None) -> list[str] | None:
+    """``--large`` value -> modes (each in ``relight.detail.LARGE_MODES``, no repeats), or None."""
+    from relight.detail import LARGE_MODES
+
+    if text is None:
+        return None
+    values = [v.strip() for v in text.split(",") if v.strip()]
+    for v in values:
+        if v not in LARGE_MODES:
+            raise UsageError(f"--large {v!r} is not one of {', '.join(LARGE_MODES)}")
+    if not values or len(set(values)) != len(values):
+        raise UsageError(f"--large {text!r} must name modes, each once")
+    return values
+
+
+def _expand_large(relighters: dict, modes: list[str]) -> dict:
+    """Apply ``--large`` to the relighters that have the modes (``large_modes``); with
+    several modes, each such relighter becomes one entry per mode it accepts (shallow
+    copies sharing the model), the others stay as they are."""
+    out = {}
+    for name, relighter in relighters.items():
+        accepted = [m for m in modes if m in getattr(relighter, "large_modes", ())]
+        if not accepted:
+            out[name] = relighter
+            continue
+        for mode in accepted:
+            variant = copy.copy(relighter)
+            variant.large = mode
+            out[name if len(modes) == 1 else f"{name} ({mode})"] = variant
+    if all(r is relighters.get(n) for n, r in out.items()):
+        raise UsageError(
+            f"--large applies to network relighters (diffusion, bieron); none of {', '.join(relighters)} takes {', '.join(modes)}"
+        )
+    return out
+
+
 def run(args) -> int:
     from matcap.estimator_relighter import register
     from materials.io.atomic import atomic_folder
@@ -400,6 +445,7 @@ def run(args) -> int:
 
     check_output_folder(args.out, overwrite=args.overwrite, marker=EVAL_MARKER)
     steps = _steps_list(args.steps)  # before any model is loaded
+    large = _large_list(args.large)
     try:
         cfg = EvalConfig(
             count=args.count,
@@ -431,6 +477,8 @@ def run(args) -> int:
             print(f"skipping {name}: {exc}", file=sys.stderr)
     if steps is not None:
         relighters = _expand_steps(relighters, steps)
+    if large is not None:
+        relighters = _expand_large(relighters, large)
     command = "relight " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["eval"] else None
     result = evaluate(relighters, cfg)
     with atomic_folder(args.out, overwrite=args.overwrite, marker=EVAL_MARKER) as tmp:

@@ -206,6 +206,8 @@ def evaluate(relighters: dict[str, Relighter], cfg: EvalConfig = EvalConfig(), d
             row["per_image"] = per_image
             if hasattr(relighter, "steps"):
                 row["sampling_steps"] = relighter.steps
+            if hasattr(relighter, "large"):  # how it treats a photo above its native size
+                row["large"] = relighter.large
             if row_name in spread:
                 row["std_error_corr"] = std_error_correlation(spread[row_name], pred, data.target)
             rows.append(row)

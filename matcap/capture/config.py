@@ -151,10 +151,10 @@ class CaptureConfig:
         camera: camera (and flash) position ``(x, y, z)``, scene units; overrides ``fov``.
         working_size: the networks' resolution, pixels.
         relit_size: side of the relit views, pixels: None keeps the working size; larger
-            (a multiple of it) relights the photo at that size, tile by tile for the
-            diffusion model (``relight.tiling``), and the refinement compares the relit
-            views there; the estimator still sees them area-downsampled to the working
-            size. The size used is the largest multiple of the working size that is at
+            (a multiple of it) relights the photo at that size (the diffusion model:
+            the whole plane at its own size, the photo's detail carried at full size,
+            ``relight.detail``), and the refinement compares the relit views there; the
+            estimator sees them resampled to ``estimate_size``. The size used is the largest multiple of the working size that is at
             most ``relit_size`` and divides the padded photo's side.
         estimate_size: side the estimator sees the photo and the relit views at, pixels
             (the whole image at once: it is convolutional): None keeps the working size;

@@ -25,7 +25,7 @@ def _component_record(component, name: str | None) -> dict:
         config = dict(config)
         record["folder"] = str(config.get("_name_or_path")) if config.get("_name_or_path") else None
         record["config_sha256"] = _sha256({k: v for k, v in config.items() if not k.startswith("_")})
-    for attr in ("steps", "num_samples"):
+    for attr in ("steps", "num_samples", "large"):
         if hasattr(component, attr):
             record[attr] = getattr(component, attr)
     return record

@@ -467,11 +467,12 @@ def test_clean_views_are_the_targets_and_the_degraded_ones_the_condition(tiny_mo
 
 
 def test_diffusion_relighter_tiles_photos_larger_than_its_resolution(tiny_model):
-    # The model's size is one call, untiled; a larger square photo is relit in windows
-    # (relight.tiling); anything smaller or not square is refused with the reason.
+    # The model's size is one call, untiled; with large="tiles" a larger square photo is
+    # relit in windows (relight.tiling); anything smaller or not square is refused with
+    # the reason.
     from relight.diffusion.relighter import DiffusionRelighter
 
-    relighter = DiffusionRelighter(tiny_model, steps=1, overlap=4)  # resolution 16
+    relighter = DiffusionRelighter(tiny_model, steps=1, overlap=4, large="tiles")  # resolution 16
     gen = lambda: torch.Generator().manual_seed(0)  # noqa: E731
     photo = torch.rand(3, 16, 16, generator=gen()) * 0.5 + 0.1
     light = torch.tensor([[1.0, -1.0, 5.0], [-2.0, 0.5, 4.0]])
@@ -485,3 +486,56 @@ def test_diffusion_relighter_tiles_photos_larger_than_its_resolution(tiny_model)
     for bad in (torch.rand(1, 3, 8, 8), torch.rand(1, 3, 32, 40)):
         with pytest.raises(ValueError, match="at least the model's resolution"):
             relighter.relight(bad, light[None], camera[None])
+
+
+def test_diffusion_relighter_relights_a_larger_photo_globally_by_default(tiny_model):
+    # large="global" (the default): one call on the whole plane area-averaged to the
+    # model's side, its residual to the re-shading upsampled onto the full-size
+    # re-shading (relight.detail); the same generator gives the same sample.
+    import torch.nn.functional as F
+
+    import kernels
+    from kernels.presets import get_preset
+    from relight.diffusion.relighter import DiffusionRelighter
+    from relight.shading import lambertian_relight
+
+    relighter = DiffusionRelighter(tiny_model, steps=1)
+    assert relighter.large == "global"
+    gen = lambda: torch.Generator().manual_seed(0)  # noqa: E731
+    big = torch.rand(1, 3, 48, 48, generator=gen()) * 0.5 + 0.1
+    light = torch.tensor([[[1.0, -1.0, 5.0], [-2.0, 0.5, 4.0]]])
+    camera = torch.tensor([[0.0, 0.0, 4.5]])
+    out = relighter.relight(big, light, camera, generator=gen())
+    small = F.adaptive_avg_pool2d(big, 16)
+    native = relighter.pipeline(small[0], light[0], camera[0], num_inference_steps=1, generator=gen(), progress=False)
+    preset = get_preset("dgrsise")
+    tm = kernels.tonemap
+    residual = tm(native) - tm(lambertian_relight(small, light, camera, preset)[0])
+    up = F.interpolate(residual, size=(48, 48), mode="bilinear", align_corners=False)
+    expected = kernels.inverse_tonemap(tm(lambertian_relight(big, light, camera, preset)[0]) + up)
+    torch.testing.assert_close(out[0], expected)
+    with pytest.raises(ValueError, match="large must be one of"):
+        DiffusionRelighter(tiny_model, large="whole")
+
+
+def test_eval_compares_large_photo_modes_in_one_run(tiny_model, tmp_path, capsys, pipeline_calls):
+    """``relight eval relighting --large global,tiles``: one row per mode of each network
+    relighter, recorded in the row; the global mode calls the model once per photo, at its
+    own size; a bad list is refused (an unknown mode before any model is loaded, a mode no
+    method takes once they are), with nothing written."""
+    import json
+
+    from matcap.cli import main
+
+    tiny_model.save_pretrained(tmp_path / "m")
+    ev = ["eval", "relighting", "--count", "1", "--size", "32", "--methods", "lambertian,diffusion"]
+    ev += ["--checkpoint", f"diffusion={tmp_path / 'm'}", "--steps", "1", "--out"]
+    assert main([*ev, str(tmp_path / "e"), "--large", "global"]) == 0
+    assert len(pipeline_calls) == 1  # one photo, its 7 lights in one call at 16 px
+    rows = {r["method"]: r for r in json.loads((tmp_path / "e" / "relight_eval.json").read_text())["rows"]}
+    assert set(rows) == {"lambertian", "diffusion"} and rows["diffusion"]["large"] == "global"
+    assert "large" not in rows["lambertian"]
+    for bad, message in (("global,global", "each once"), ("nosuch", "not one of"), ("whole", "none of")):
+        assert main([*ev, str(tmp_path / "bad"), "--large", bad]) == 2
+        assert message in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
