@@ -110,9 +110,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         type=int,
         default=None,
         metavar="PX",
-        help="side of the relit views, a multiple of 64 (default 64, the networks' size); larger "
-        "ones are relit from the whole plane at 64 px with the photo's detail carried at full size "
-        "(relight.detail) and refined against at that size",
+        help="side of the relit views, a multiple of 64 (default 256, or the largest multiple of 64 "
+        "that divides the padded photo's side); above the networks' 64 px the whole plane is relit "
+        "at 64 px with the photo's detail carried at full size (relight.detail); refined against at that size",
     )
     p.add_argument(
         "--estimate-size",

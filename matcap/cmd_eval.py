@@ -159,7 +159,7 @@ def _add_capture_parser(what) -> None:
         "--samples", type=int, default=1, help="diffusion samples per relit view, averaged (default %(default)s)"
     )
     c.add_argument(
-        "--relit-size", type=int, default=None, help="side of the relit views (default: the working size, 64)"
+        "--relit-size", type=int, default=None, help="side of the relit views (default: the pipeline's, 256)"
     )
     c.add_argument(
         "--estimate-size",
@@ -262,6 +262,7 @@ def run_capture(args) -> int:
     try:
         overrides = {
             "estimate_size": args.estimate_size,
+            "relit_size": args.relit_size,
             "flatness": args.flatness,
             "radial": args.radial,
             "relit_weight": args.relit_weight,
@@ -273,7 +274,6 @@ def run_capture(args) -> int:
         }
         capture = CaptureConfig(
             samples=args.samples,
-            relit_size=args.relit_size,
             relit_robust=args.relit_robust,
             **{k: v for k, v in overrides.items() if v is not None},
         )

@@ -84,11 +84,12 @@ def test_pipeline_end_to_end_on_a_non_square_photo(tiny_estimator, tmp_path):
     photo = smooth_photo(100, 70)
     out = pipeline(tiny_estimator)(photo)
     k = len(EVAL_LIGHTS)
-    # Maps, re-renders and their channels on the photo's grid; the relighter at 64 px, the
-    # estimator on the whole padded 128 px square (below the default estimate size).
+    # Maps, re-renders and their channels on the photo's grid; the relit views and the
+    # estimator on the whole padded 128 px square (below the default relit and estimate
+    # sizes, 256).
     assert out.material.shape == (100, 70) and out.material.diffuse.shape == (3, 100, 70)
     assert out.renders.shape == (1 + k, 3, 100, 70) and bool(torch.isfinite(out.renders).all())
-    assert out.relit.shape == (k, 3, WORKING_SIZE, WORKING_SIZE) and out.estimate.shape == (128, 128)
+    assert out.relit.shape == (k, 3, 2 * WORKING_SIZE, 2 * WORKING_SIZE) and out.estimate.shape == (128, 128)
     assert out.capture.num_views == 1 + k and out.capture.shape == (128, 128)
     assert torch.equal(out.capture.light_pos[0], out.capture.camera_pos[0])  # view 0: the flash
     assert out.frame.size == (128, 128) and out.frame.photo_size == (100, 70)
@@ -446,7 +447,7 @@ def test_relit_views_at_a_larger_size_are_refined_against_there(tiny_estimator):
     torch.testing.assert_close(out.relit, direct)  # relit from the full-size photo
     torch.testing.assert_close(out.capture.images[1:], area_downsample(direct, 64))
     # Relit views smaller than the estimate size are upsampled bilinearly to it.
-    up = pipeline(tiny_estimator, relit=2, estimate_size=128, falloff="none")(photo)
+    up = pipeline(tiny_estimator, relit=2, relit_size=None, estimate_size=128, falloff="none")(photo)
     assert up.relit.shape == (2, 3, 64, 64) and up.capture.shape == (128, 128)
     torch.testing.assert_close(up.capture.images[0], photo)  # the photo itself, no falloff
     torch.testing.assert_close(
@@ -523,7 +524,16 @@ def capture_argv(photo, out, estimator_folder, *extra):
 def test_cli_capture_then_estimate_round_trip(tmp_path, estimator_folder, capsys):
     out = tmp_path / "cap"
     args = capture_argv("builtin:tiles", out, estimator_folder, "--relighter", "lambertian", "--relit", "3")
-    args += ["--falloff", "none", "--estimate-size", "64", "--shared-step-maps", "normal,roughness"]
+    args += [
+        "--falloff",
+        "none",
+        "--estimate-size",
+        "64",
+        "--relit-size",
+        "64",
+        "--shared-step-maps",
+        "normal,roughness",
+    ]
     assert main([*args, "--radial", "0.5", "--radial-maps", "roughness,specular"]) == 0
     assert "capture" in capsys.readouterr().err  # the progress bar
     prov = json.loads((out / PROVENANCE_JSON).read_text())

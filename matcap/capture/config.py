@@ -41,6 +41,11 @@ DEFAULT_REFINE_STEPS = 100
 #: ``results/estimator_resolution``), in 1 s for 8 views; 512 px adds nothing (-0.2 dB)
 #: at 8x the time and ~2 GB.
 DEFAULT_ESTIMATE_SIZE = 256
+#: The relit views' side: the diffusion model relights the whole plane at 64 px and the
+#: photo's detail is carried to 256 px (``relight.detail``); against 64 px relit views
+#: the 13 held-out materials re-render +0.40 / +0.53 / +0.06 dB better (procedural /
+#: INRIA / textures, ``results/relight_detail/``) at the same relighting cost.
+DEFAULT_RELIT_SIZE = 256
 #: Weight of the refinement's flat-sample prior (``matcap.capture.priors.tilt_energy``):
 #: the low-frequency tilt of the normal map, which the refinement otherwise uses to
 #: explain a flash falloff that does not match the model's (four tilted quadrants around
@@ -188,7 +193,7 @@ class CaptureConfig:
     fov: float | None = None
     camera: tuple[float, float, float] | None = None
     working_size: int = WORKING_SIZE
-    relit_size: int | None = None
+    relit_size: int | None = DEFAULT_RELIT_SIZE
     estimate_size: int | None = DEFAULT_ESTIMATE_SIZE
     max_side: int | None = None
     seed: int = 0
@@ -258,8 +263,8 @@ class CaptureConfig:
         working size): the largest multiple of the working size that is at most
         ``relit_size`` (None: the working size) and divides ``side``.
 
-        >>> CaptureConfig(relit_size=256).relit_side(512), CaptureConfig(relit_size=256).relit_side(320)
-        (256, 64)
+        >>> CaptureConfig().relit_side(512), CaptureConfig().relit_side(320), CaptureConfig(relit_size=None).relit_side(512)
+        (256, 64, 64)
         """
         return self._side(self.relit_size, side)
 
