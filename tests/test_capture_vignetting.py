@@ -113,6 +113,17 @@ def test_the_fit_only_darkens():
     assert residual(fitted) <= min(residual(a) for a in grid) + LSQ_SLACK
 
 
+def _vignetted_scene(side: int, lights: torch.Tensor, camera: torch.Tensor) -> tuple[torch.Tensor, Material]:
+    """A uniform material rendered under ``lights [K, 3]`` through the true vignetting
+    gain about the flash point: ``views [K, 3, side, side]`` (linear) and the maps whose
+    diffuse has absorbed the gain (what the estimator returns for such a photo)."""
+    truth = _uniform(side)
+    basis = vignetting_basis(side, plane_to_grid(0.0, 0.0, side, 4.0))
+    gain = vignetting_gain(torch.tensor(TRUE_COEFFICIENTS), basis)
+    views = kernels.render(*truth.map_tensors(), lights[None], camera)[0] * gain
+    return views, Material(truth.diffuse * gain, truth.normal, truth.roughness, truth.specular)
+
+
 def test_the_gain_takes_a_vignetted_photo_s_falloff_off_the_diffuse():
     # A uniform material photographed through a vignetting gain, refined from maps whose
     # diffuse has absorbed it (what the estimator returns for such a photo), with the
@@ -121,11 +132,8 @@ def test_the_gain_takes_a_vignetted_photo_s_falloff_off_the_diffuse():
     # gain ends near the true one and the diffuse flat.
     side = 64
     camera = torch.tensor([0.0, 0.0, 4.83])
-    truth = _uniform(side)
-    basis = vignetting_basis(side, plane_to_grid(0.0, 0.0, side, 4.0))
-    gain = vignetting_gain(torch.tensor(TRUE_COEFFICIENTS), basis)
-    photo = kernels.render(*truth.map_tensors(), camera[None, None], camera)[0, 0] * gain
-    baked = Material(truth.diffuse * gain, truth.normal, truth.roughness, truth.specular)
+    views, baked = _vignetted_scene(side, camera[None], camera)
+    photo = views[0]
     mask = torch.ones(side, side, dtype=torch.bool)
     empty = torch.zeros(0, 3, side, side)
 
@@ -164,12 +172,8 @@ def test_on_all_views_the_gain_needs_no_diffuse_prior():
     # back into the diffuse), -0.002 on all views.
     side = 64
     camera = torch.tensor([0.0, 0.0, 4.83])
-    truth = _uniform(side)
-    basis = vignetting_basis(side, plane_to_grid(0.0, 0.0, side, 4.0))
-    gain = vignetting_gain(torch.tensor(TRUE_COEFFICIENTS), basis)
     lights = torch.tensor([[0.0, 0.0, 4.83], [2.0, 1.0, 4.0], [-1.0, -2.0, 4.0]])
-    views = kernels.render(*truth.map_tensors(), lights[None], camera)[0] * gain
-    baked = Material(truth.diffuse * gain, truth.normal, truth.roughness, truth.specular)
+    views, baked = _vignetted_scene(side, lights, camera)
     mask = torch.ones(side, side, dtype=torch.bool)
     result = refine_full_resolution(
         baked, views[0], mask, views[1:], mask, lights, camera, relit_weight=1.0, radial=DEFAULT_RADIAL,
