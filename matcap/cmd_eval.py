@@ -417,9 +417,10 @@ def _expand_large(relighters: dict, modes: list[str]) -> dict:
     """Apply ``--large`` to the relighters that have the modes (``large_modes``); with
     several modes, each such relighter becomes one entry per mode it accepts (shallow
     copies sharing the model), the others stay as they are."""
-    out = {}
+    out, taken = {}, False
     for name, relighter in relighters.items():
         accepted = [m for m in modes if m in getattr(relighter, "large_modes", ())]
+        taken = taken or bool(accepted)
         if not accepted:
             out[name] = relighter
             continue
@@ -427,7 +428,7 @@ def _expand_large(relighters: dict, modes: list[str]) -> dict:
             variant = copy.copy(relighter)
             variant.large = mode
             out[name if len(modes) == 1 else f"{name} ({mode})"] = variant
-    if all(r is relighters.get(n) for n, r in out.items()):
+    if not taken:
         raise UsageError(
             f"--large applies to network relighters (diffusion, bieron); none of {', '.join(relighters)} takes {', '.join(modes)}"
         )
