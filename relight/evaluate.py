@@ -120,7 +120,11 @@ def load_eval_data(cfg: EvalConfig) -> EvalData:
     """Render the held-out materials: under the input flash and the 7 evaluation lights
     (``paper``), or as capture-domain groups (``capture``; module docstring)."""
     seeds = EVAL_SEEDS[cfg.first : cfg.first + cfg.count]
-    config = GroupConfig(size=cfg.size, seed=EVAL_CROP_SEED)
+    # The materials are generated at GroupConfig's default source size (256 px) and
+    # cropped, as in training; a larger evaluation generates them at its own size, so the
+    # 64 and 256 px tables keep their materials and 512 px does not upsample a 256 px map.
+    source_size = max(GroupConfig.source_size, cfg.size)
+    config = GroupConfig(size=cfg.size, source_size=source_size, seed=EVAL_CROP_SEED)
     if cfg.domain == "capture":
         return _capture_domain_data(DomainGroups(seeds, config, CaptureDomain.relighting()))
     groups = RenderedGroups(seeds, config)

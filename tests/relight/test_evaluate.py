@@ -117,6 +117,14 @@ def test_eval_data_is_held_out_and_deterministic():
     assert torch.equal(a.photo, b.photo) and a.target.shape == (2, 7, 3, 16, 16)
 
 
+def test_eval_data_above_the_training_source_size():
+    # 264 px > GroupConfig's 256 px source: the materials are generated at 264 px instead
+    # of refusing the size (a 512 px evaluation once failed here).
+    data = load_eval_data(EvalConfig(count=1, size=264))
+    assert data.photo.shape == (1, 3, 264, 264) and data.target.shape == (1, 7, 3, 264, 264)
+    assert torch.isfinite(data.target).all() and data.photo.std() > 0
+
+
 def test_capture_domain_data_are_degraded_photos_with_unclipped_targets():
     # --domain capture: each material its own camera and lights, a phone-like input photo
     # (8-bit, so at most 1 after decoding) and the unclipped views 1..7 as targets.
