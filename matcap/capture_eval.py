@@ -367,7 +367,7 @@ def evaluate(
         on_row: called with each row as it is made (e.g. to log it).
 
     Returns:
-        ``{"config", "rows", "summary", "seconds"}``: one row per (material, run) with the
+        ``{"config", "relighters", "rows", "summary", "seconds"}``: one row per (material, run) with the
         ``score`` keys, ``set``, ``material``, ``run``, ``inputs`` and ``seconds``; the
         summary's means per (set, run).
     """
@@ -407,12 +407,25 @@ def evaluate(
     bar.close()
     return {
         "config": cfg.to_dict(),
+        # Settings that live on the relighters, not in ``cfg`` (sampling steps, the mode
+        # for photos above their native size): two reports differ in them too.
+        "relighters": {name: relighter_settings(r) for name, r in relighters.items()},
         "camera": camera.tolist(),
         "novel_lights": {"count": NOVEL_LIGHT_COUNT, "seed": NOVEL_LIGHT_SEED},
         "rows": rows,
         "summary": summarize(rows),
         "seconds": round(time.perf_counter() - start, 1),
     }
+
+
+def relighter_settings(relighter: Relighter) -> dict:
+    """A relighter's class and the settings it carries (``steps``, ``num_samples``,
+    ``large``, where it has them)."""
+    record: dict = {"class": type(relighter).__name__}
+    for attr in ("steps", "num_samples", "large"):
+        if hasattr(relighter, attr):
+            record[attr] = getattr(relighter, attr)
+    return record
 
 
 def summarize(rows: list[dict]) -> list[dict]:

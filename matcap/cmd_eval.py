@@ -236,6 +236,14 @@ def _add_capture_parser(what) -> None:
     )
     c.add_argument("--estimator", type=Path, default=None, help="estimator folder (default: the shipped one)")
     c.add_argument(
+        "--large",
+        default=None,
+        metavar="MODE",
+        help="how the network relighters that take the mode treat relit views larger than their native "
+        "64 px: global, tiles (diffusion) or whole (bieron) (default: each relighter's own, global for "
+        "diffusion, whole for bieron)",
+    )
+    c.add_argument(
         "--checkpoint",
         action="append",
         default=[],
@@ -301,12 +309,19 @@ def run_capture(args) -> int:
     if args.num_threads:
         torch.set_num_threads(args.num_threads)
     needed = sorted({RUNS[r][0] for r in cfg.runs} - {None, "gt"})
+    large = _large_list(args.large)
+    if large is not None and len(large) > 1:
+        raise UsageError(f"--large {args.large!r}: eval capture takes one mode (its rows are named by --runs)")
+    if large is not None and not needed:
+        raise UsageError("--large applies to relit views; no run of --runs uses a relighter")
     checkpoints = _checkpoints(args.checkpoint)
     unused = sorted(set(checkpoints) - set(needed))
     if unused:
         raise UsageError(f"--checkpoint {', '.join(unused)}: no run of --runs uses it (they use: {', '.join(needed)})")
     estimator = load_estimator(args.estimator)
     relighters = {name: get_relighter(name, checkpoints.get(name)) for name in needed}
+    if large is not None:
+        relighters = _expand_large(relighters, large)
     command = "relight " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:2] == ["eval"] else None
     report = evaluate(cfg, estimator, relighters)
     with atomic_folder(args.out, overwrite=args.overwrite, marker=CAPTURE_MARKER) as tmp:

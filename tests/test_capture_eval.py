@@ -235,6 +235,10 @@ def test_cli_eval_capture_writes_the_report(tmp_path, estimator_folder, capsys):
         (["--radial", "-1"], "radial must be a finite number >= 0"),
         (["--relit-weight", "-1"], "relit_weight must be a finite number >= 0"),
         (["--runs", "alone,diffusion", "--checkpoint", "diffusion=/nonexistent"], "/nonexistent"),
+        (["--large", "nosuch"], "is not one of"),
+        (["--large", "global,whole"], "takes one mode"),
+        (["--runs", "alone,gt", "--large", "global"], "no run of --runs uses a relighter"),
+        (["--runs", "alone,bieron", "--large", "tiles"], "none of bieron takes tiles"),
     ],
 )
 def test_cli_eval_capture_bad_settings(tmp_path, estimator_folder, capsys, extra, message):
@@ -261,3 +265,17 @@ def test_cli_eval_capture_hands_the_checkpoint_to_the_relighter(tmp_path, estima
     argv += ["--count", "1", "--size", "64", "--refine", "1", "--estimator", str(estimator_folder)]
     assert main([*argv, "--checkpoint", f"diffusion={tmp_path / 'snapshot'}"]) == 0
     assert asked == [("diffusion", str(tmp_path / "snapshot"))]
+
+
+def test_cli_eval_capture_large_sets_the_mode_of_the_relighters_that_take_it(tmp_path, estimator_folder):
+    # --large whole reaches Bieron (which takes it) and leaves the diffusion relighter at
+    # its own mode; the report records both.
+    out = tmp_path / "o"
+    argv = ["eval", "capture", "--out", str(out), "--sets", "procedural", "--runs", "diffusion3,bieron"]
+    argv += ["--count", "1", "--size", "64", "--refine", "1", "--estimator", str(estimator_folder)]
+    assert main([*argv, "--large", "whole"]) == 0
+    settings = json.loads((out / "capture_eval.json").read_text())["relighters"]
+    assert settings["bieron"]["large"] == "whole" and settings["diffusion"]["large"] == "global"
+    assert main([*argv, "--large", "global", "--overwrite"]) == 0
+    settings = json.loads((out / "capture_eval.json").read_text())["relighters"]
+    assert settings["bieron"]["large"] == "global" and settings["diffusion"]["large"] == "global"
