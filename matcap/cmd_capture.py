@@ -51,6 +51,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "mostly inform the estimator, the refinement mostly fits the photo)",
     )
     p.add_argument(
+        "--relit-highlight",
+        type=float,
+        default=None,
+        metavar="DEG",
+        help="leave the photo's flash highlight out of the relit views' refinement loss: the disc "
+        "within DEG degrees under the flash and the photo's clipped pixels (default 6; 0: none)",
+    )
+    p.add_argument(
         "--relit-maps",
         default=None,
         metavar="NAMES",
@@ -166,6 +174,7 @@ def _config(args):
         ("--refine", args.refine, lambda v: v >= 0, "must be >= 0"),
         ("--relit-weight", args.relit_weight, lambda v: 0 <= v < float("inf"), "must be a number >= 0"),
         ("--flatness", args.flatness, lambda v: 0 <= v < float("inf"), "must be a number >= 0"),
+        ("--relit-highlight", args.relit_highlight, lambda v: 0 <= v < 90, "must lie in [0, 90) degrees"),
         ("--radial", args.radial, lambda v: 0 <= v < float("inf"), "must be a number >= 0"),
         ("--fov", args.fov, lambda v: 0 < v < 180, "must lie strictly between 0 and 180 degrees"),
         ("--max-side", args.max_side, lambda v: WORKING_SIZE <= v <= MAX_SIDE, f"must be {WORKING_SIZE}..{MAX_SIDE}"),
@@ -191,6 +200,7 @@ def _config(args):
         "samples": args.samples,
         "refine_steps": args.refine,
         "relit_weight": args.relit_weight,
+        "relit_highlight": args.relit_highlight,
         "flatness": args.flatness,
         "radial": args.radial,
         "relit_maps": parse_map_names(args.relit_maps, "--relit-maps", allow_none=False),

@@ -176,6 +176,14 @@ def _add_capture_parser(what) -> None:
         help="robust refinement loss of the relit views at this scale (default: log-L1)",
     )
     c.add_argument(
+        "--relit-highlight",
+        type=float,
+        default=None,
+        metavar="DEG",
+        help="half-angle of the flash-highlight disc the relit views' refinement loss leaves out "
+        "(0: none; default: the pipeline's)",
+    )
+    c.add_argument(
         "--flatness",
         type=float,
         default=None,
@@ -274,6 +282,7 @@ def run_capture(args) -> int:
             "flatness": args.flatness,
             "radial": args.radial,
             "relit_weight": args.relit_weight,
+            "relit_highlight": args.relit_highlight,
             "relit_maps": parse_map_names(args.relit_maps, "--relit-maps", allow_none=False),
             "radial_maps": parse_map_names(args.radial_maps, "--radial-maps"),
             "vignetting": args.vignetting,

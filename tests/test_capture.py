@@ -22,6 +22,7 @@ from estimator.model import SVBRDFEstimator
 from matcap.capture import (
     DEFAULT_FLATNESS,
     DEFAULT_SHARED_STEP_MAPS,
+    MAP_NAMES,
     MAX_SIDE,
     PROVENANCE_JSON,
     WORKING_SIZE,
@@ -30,16 +31,18 @@ from matcap.capture import (
     area_downsample,
     builtin_photo,
     falloff_factor,
+    flash_disc,
     refine_full_resolution,
     refine_memory_bytes,
 )
+from matcap.capture.priors import plane_to_grid
 from matcap.cli import main
 from materials.frame import prepare_photo
 from materials.io import read_capture, read_exr, read_glb, write_png
 from materials.io.gltf import SPECULAR_EXTENSION
 from materials.lights import EVAL_LIGHTS
 from materials.types import Material
-from relight.interface import get_relighter
+from relight.interface import Relighter, get_relighter
 
 #: 8-bit capture PNGs: half a code step in display space, y = x^(1/2.2), is at most
 #: 2.2 * 0.5 / 255 = 0.0043 in linear radiance for values in [0, 1] (dx/dy = 2.2 y^1.2 <= 2.2).
@@ -459,6 +462,67 @@ def test_relit_views_at_a_larger_size_are_refined_against_there(tiny_estimator):
         CaptureConfig(relit_size=100)
 
 
+def test_flash_disc_is_the_cone_under_the_flash():
+    # Camera off the centre at height 4 over a plane of side 4 at 128 px (1/32 unit a
+    # pixel): the disc has the radius h tan(angle), its centre under the camera.
+    camera = torch.tensor([0.5, -0.25, 4.0])
+    disc = flash_disc(camera, 128, 4.0, 10.0)
+    radius_px = 4.0 * math.tan(math.radians(10.0)) * 32
+    # Pixel-count of a digitised disc: off by at most its perimeter's pixels.
+    assert abs(int(disc.sum()) - math.pi * radius_px**2) <= 2 * math.pi * radius_px
+    rows, cols = torch.nonzero(disc, as_tuple=True)
+    row0, col0 = plane_to_grid(0.5, -0.25, 128, 4.0)
+    assert abs(float(rows.double().mean()) - row0) < 0.5 and abs(float(cols.double().mean()) - col0) < 0.5
+    # Twice as high, the same angle covers twice the radius.
+    high = flash_disc(torch.tensor([0.5, -0.25, 8.0]), 128, 4.0, 10.0)
+    assert int(high.sum()) == pytest.approx(4 * int(disc.sum()), rel=0.05)
+    assert not flash_disc(camera, 128, 4.0, 0.0).any()
+    with pytest.raises(ValueError, match="half angle"):
+        flash_disc(camera, 128, 4.0, 90.0)
+
+
+class _FixedViews(Relighter):
+    """Relit views given in advance (``[K, 3, S, S]``), whatever the photo."""
+
+    name = "fixed"
+
+    def __init__(self, views: torch.Tensor):
+        self.views = views
+
+    def _relight(self, photo, light_pos, camera_pos, *, generator=None):
+        return self.views[None, : light_pos.shape[1]].clone()
+
+
+def test_relit_views_do_not_pull_the_maps_inside_the_flash_highlight(tiny_estimator):
+    # The relit views' pixels within relit_highlight degrees under the flash, and those
+    # over the photo's clipped pixels, are out of their loss: changing them there leaves
+    # the refined maps exactly as they were; changing a pixel elsewhere does not.
+    photo = smooth_photo(64, 64)
+    photo[:, 2:6, 2:6] = 1.0  # a clipped patch far from the flash point
+    base = photo.clamp(max=0.6)[None] * torch.tensor([0.8, 1.2]).view(2, 1, 1, 1)  # two views, all below 1
+    cfg = {"relit": 2, "relit_size": None, "falloff": "none", "relit_weight": 1.0, "refine_steps": 3}
+    cfg["photo_maps"] = MAP_NAMES  # the estimator's maps do not see the relit views: only the refinement does
+    cfg["camera"] = (0.0, 0.0, 4.0)  # the disc: 4 tan 7 deg = 0.49 units, 7.9 px at 16 px a unit
+
+    def run(views, angle):
+        config = CaptureConfig(relit_highlight=angle, **cfg)
+        return CapturePipeline(_FixedViews(views), tiny_estimator, config=config)(photo).material
+
+    inside, clipped, outside = base.clone(), base.clone(), base.clone()
+    inside[:, :, 29:35, 29:35] *= 1.5  # within 4.3 px of the flash point (31.5, 31.5)
+    clipped[:, :, 3:5, 3:5] *= 0.2
+    outside[:, :, 50:54, 10:14] *= 1.5
+    reference = run(base, 7.0)
+    for changed in (inside, clipped):
+        for a, b in zip(run(changed, 7.0).map_tensors(), reference.map_tensors()):
+            torch.testing.assert_close(a, b, rtol=0, atol=0)
+    assert not torch.equal(run(outside, 7.0).diffuse, reference.diffuse)
+    # With relit_highlight 0 every pixel counts again.
+    assert not torch.equal(run(inside, 0.0).diffuse, run(base, 0.0).diffuse)
+    with pytest.raises(ValueError, match="relit_highlight"):
+        CaptureConfig(relit_highlight=-1.0)
+
+
 def test_the_shipped_diffusion_relighter_relights_in_tiles_above_its_size(tiny_estimator):
     out = CapturePipeline(
         get_relighter("diffusion"), tiny_estimator, config=CaptureConfig(relit=1, relit_size=128, refine_steps=1)
@@ -635,6 +699,7 @@ def test_cli_bad_photo_is_one_error_line_and_nothing_written(tmp_path, estimator
         (["--relighter", "lambertian", "--samples", "2"], "applies to sampling methods"),
         (["--relit-size", "100"], "--relit-size must be a multiple of 64"),
         (["--flatness", "-1"], "--flatness must be a number >= 0"),
+        (["--relit-highlight", "95"], "--relit-highlight must lie in [0, 90) degrees"),
         (["--radial", "-0.5"], "--radial must be a number >= 0"),
         (["--radial-maps", "gloss"], "--radial-maps takes distinct names"),
         (["--relit-maps", "albedo"], "--relit-maps takes distinct names of diffuse, normal"),
@@ -698,6 +763,7 @@ def test_help_numbers_match_the_code(capsys):
         DEFAULT_RADIAL_MAPS,
         DEFAULT_REFINE_STEPS,
         DEFAULT_RELIGHT_STEPS,
+        DEFAULT_RELIT_HIGHLIGHT,
         DEFAULT_RELIT_MAPS,
         DEFAULT_RELIT_WEIGHT,
         DEFAULT_SHARED_STEP_MAPS,
@@ -710,6 +776,7 @@ def test_help_numbers_match_the_code(capsys):
     assert f"refinement steps (default {DEFAULT_REFINE_STEPS})" in text
     assert f"the photo's is 1 (default {DEFAULT_RELIT_WEIGHT:g}:" in text
     assert f"low-frequency normal tilt (default {DEFAULT_FLATNESS:g};" in text
+    assert f"the photo's clipped pixels (default {DEFAULT_RELIT_HIGHLIGHT:g}; 0: none)" in text
     assert f"centred on the flash (default {DEFAULT_RADIAL:g};" in text
     assert f"separated (default {','.join(DEFAULT_RADIAL_MAPS)})" in text
     assert f"fitted to the photo alone (default {','.join(DEFAULT_RELIT_MAPS)})" in text

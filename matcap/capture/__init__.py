@@ -16,16 +16,17 @@ the folder). The steps:
 4. one ``Capture``: the working photo as view 0, the relit views after it;
 5. the estimator on the 1 + K views at the estimate size; the maps named in
    ``CaptureConfig.photo_maps`` (default diffuse and normal) come from a second pass on
-   the photo alone: the relit views (64 px by default) are upsampled to the estimate
-   size, so they blur the detail maps, while they do tell roughness and specular
-   (``results/capture_views``);
+   the photo alone: relit views smaller than the estimate size would blur the detail
+   maps, while they do tell roughness and specular (``results/capture_views``);
 6. refinement at the photo's full resolution (``refine_full_resolution``): per-pixel maps,
    initialised from the estimator's maps upsampled, fitted through the Warp renderer to
    the full-resolution photo and to the relit views compared at *their* resolution
    (render at full resolution, area-downsample, then the loss), a weight per view (the
    relit views' default weight is 0.03 against the photo's 1: fitting them harder cost
    re-render accuracy), optionally routed to some maps only (``relit_maps``), the
-   padded pixels masked out; Adam per pixel, except for the normals, whose step size is
+   padded pixels masked out, and so are the relit views' pixels over the photo's flash
+   highlight (``relit_highlight``: a disc under the flash and the clipped pixels, where
+   the relighters leave a darker disc); Adam per pixel, except for the normals, whose step size is
    shared by their pixels (``shared_step_maps``, ``estimator.optim.MapAdam``: per-pixel
    steps creased them through the flash point, ``results/capture_steps``);
 7. the maps mapped back to the photo's pixel grid (``Frame.material_to_photo``);
@@ -81,6 +82,7 @@ from matcap.capture.config import (
     DEFAULT_REFINE_STEPS,
     DEFAULT_RELIGHT_STEPS,
     DEFAULT_RELIGHTER,
+    DEFAULT_RELIT_HIGHLIGHT,
     DEFAULT_RELIT_MAPS,
     DEFAULT_RELIT_WEIGHT,
     DEFAULT_SHARED_STEP_MAPS,
@@ -114,7 +116,7 @@ from matcap.capture.refine import _to_parameters as _to_parameters
 from matcap.capture.refine import _view_chunks as _view_chunks
 from matcap.capture.refine import refine_full_resolution, refine_memory_bytes
 from matcap.capture.relighting import native_resolution, relight_views
-from matcap.capture.scene import CaptureScene, area_downsample, capture_scene, falloff_factor
+from matcap.capture.scene import CaptureScene, area_downsample, capture_scene, falloff_factor, flash_disc
 
 __all__ = [
     "CapturePipeline",
@@ -123,6 +125,7 @@ __all__ = [
     "CaptureScene",
     "refine_full_resolution",
     "falloff_factor",
+    "flash_disc",
     "area_downsample",
     "refine_memory_bytes",
     "builtin_photo",
@@ -137,6 +140,7 @@ __all__ = [
     "DEFAULT_FLATNESS",
     "DEFAULT_RELIT_WEIGHT",
     "DEFAULT_RELIT_MAPS",
+    "DEFAULT_RELIT_HIGHLIGHT",
     "DEFAULT_RADIAL",
     "DEFAULT_RADIAL_MAPS",
     "DEFAULT_PHOTO_MAPS",

@@ -16,13 +16,13 @@ from tqdm.auto import tqdm
 
 import kernels
 from estimator.model import SVBRDFEstimator
-from matcap.capture.config import DEFAULT_RELIGHTER, MAX_SIDE, RENDER_LIGHTS, CaptureConfig
+from matcap.capture.config import CLIPPED_LINEAR, DEFAULT_RELIGHTER, MAX_SIDE, RENDER_LIGHTS, CaptureConfig
 from matcap.capture.output import CaptureOutput, _preview_sheet
 from matcap.capture.photo import photo_from_tensor
 from matcap.capture.provenance import _component_record, _package_versions
 from matcap.capture.refine import refine_full_resolution, refine_memory_bytes
 from matcap.capture.relighting import native_resolution, relight_views
-from matcap.capture.scene import CaptureScene, area_downsample, capture_scene, falloff_factor
+from matcap.capture.scene import CaptureScene, area_downsample, capture_scene, falloff_factor, flash_disc
 from materials.frame import Frame, prepare_photo
 from materials.io.photo import MIN_PHOTO_SIDE, Photo
 from materials.lights import EVAL_LIGHTS
@@ -56,6 +56,17 @@ def _resample(images: torch.Tensor, side: int) -> torch.Tensor:
     if images.shape[-1] > side:
         return area_downsample(images, side)
     return F.interpolate(images, size=(side, side), mode="bilinear", align_corners=False)
+
+
+def _highlight_region(image, photo: Photo, camera, size: int, plane_size: float, cfg: CaptureConfig):
+    """``[size, size]`` bool, the relit views' pixels over the photo's flash highlight: the
+    disc of ``cfg.relit_highlight`` degrees under the flash, and every relit pixel that
+    covers a clipped photo pixel (8-bit formats; an EXR is taken as unclipped)."""
+    region = flash_disc(camera, size, plane_size, cfg.relit_highlight)
+    if photo.format != "exr":
+        clipped = (image.amax(0, keepdim=True) >= CLIPPED_LINEAR).float()
+        region = region | (area_downsample(clipped, size)[0] > 0)
+    return region
 
 
 def _upsample(material: Material, side: int) -> Material:
@@ -197,6 +208,8 @@ class CapturePipeline:
             photo_mask = frame.valid_mask()
             rs = cfg.relit_side(side)
             relit_mask = area_downsample(photo_mask.float()[None], rs)[0] >= 1.0  # relit pixels all real
+            if k and cfg.relit_highlight > 0:
+                relit_mask = relit_mask & ~_highlight_region(image, photo, camera, rs, frame.plane_size, cfg)
             if cfg.falloff == "inverse-square":
                 model_image = image / falloff_factor(camera[None], height, side, frame.plane_size)[0]
             else:

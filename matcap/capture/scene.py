@@ -1,6 +1,7 @@
 """Where the camera, the flash and the lights sit over the plane (``CaptureScene``,
-``capture_scene``), the flash's falloff over it (``falloff_factor``), and the exact area
-downsampling between the photo's and the working resolution (``area_downsample``).
+``capture_scene``), the flash's falloff over it (``falloff_factor``), the disc of its
+highlight (``flash_disc``), and the exact area downsampling between the photo's and the
+working resolution (``area_downsample``).
 """
 
 from __future__ import annotations
@@ -89,6 +90,24 @@ def falloff_factor(light_pos: torch.Tensor, reference_height: float, size: int, 
     # models' gain of a light of intensity I with falloff is pi d^2 / I).
     power = (math.pi * reference_height**2,) * 3
     return 1.0 / model_gain(light_pos, (size, size), plane_size, power, inverse_square=True)[:, :1]
+
+
+def flash_disc(camera_pos: torch.Tensor, size: int, plane_size: float, half_angle_deg: float) -> torch.Tensor:
+    """``[size, size]`` bool: the pixels of a square image spanning the plane whose point
+    the collocated camera and flash at ``camera_pos`` see within ``half_angle_deg`` of the
+    plane's normal, i.e. within ``h tan(angle)`` of the point under the flash.
+
+    With light and view both at that angle, the half vector is too, so this is where a
+    GGX lobe of that half-width puts the flash highlight on a flat sample, whatever the
+    camera height (pixel centres as ``kernels.brdf``'s ``plane_point``, SPEC section 2).
+    """
+    if not (math.isfinite(half_angle_deg) and 0 <= half_angle_deg < 90):
+        raise ValueError(f"half angle must lie in [0, 90) degrees, got {half_angle_deg}")
+    x0, y0, h = (float(v) for v in camera_pos.reshape(3))
+    radius = h * math.tan(math.radians(half_angle_deg))
+    centres = ((torch.arange(size, dtype=torch.float64) + 0.5) / size - 0.5) * plane_size
+    x, y = centres[None, :], -centres[:, None]
+    return (x - x0) ** 2 + (y - y0) ** 2 <= radius**2
 
 
 def capture_scene(
