@@ -173,6 +173,17 @@ def main(argv: list[str] | None = None) -> int:
         help="maps whose refinement step is shared by their pixels, comma-separated or none (default: the pipeline's)",
     )
     parser.add_argument(
+        "--relit-maps",
+        default=None,
+        help="maps the relit views' refinement loss may change, comma-separated (default: the pipeline's)",
+    )
+    parser.add_argument(
+        "--relit-highlight",
+        type=float,
+        default=None,
+        help="half-angle of the flash disc left out of the relit views' loss, degrees (default: the pipeline's)",
+    )
+    parser.add_argument(
         "--measure-only",
         action="store_true",
         help="no capture and no picture: measure the folders an earlier run left in --work again",
@@ -205,6 +216,12 @@ def main(argv: list[str] | None = None) -> int:
         pipeline.config = replace(
             pipeline.config, shared_step_maps=parse_map_names(args.shared_step_maps, "--shared-step-maps")
         )
+    if args.relit_maps is not None:
+        pipeline.config = replace(
+            pipeline.config, relit_maps=parse_map_names(args.relit_maps, "--relit-maps", allow_none=False)
+        )
+    if args.relit_highlight is not None:
+        pipeline.config = replace(pipeline.config, relit_highlight=args.relit_highlight)
     rows, records = [], []
     side_light = torch.tensor([[3.0, 1.0, 4.0]])
 
@@ -236,6 +253,8 @@ def main(argv: list[str] | None = None) -> int:
             "vignetting": pipeline.config.vignetting,
             "vignetting_fit": with_relit.provenance["refinement"]["vignetting"],
             "shared_step_maps": list(pipeline.config.shared_step_maps),
+            "relit_maps": list(pipeline.config.relit_maps),
+            "relit_highlight": pipeline.config.relit_highlight,
         }
         records.append(record)
         print(json.dumps(record), file=sys.stderr, flush=True)
