@@ -776,7 +776,7 @@ def test_help_numbers_match_the_code(capsys):
     assert f"refinement steps (default {DEFAULT_REFINE_STEPS})" in text
     assert f"the photo's is 1 (default {DEFAULT_RELIT_WEIGHT:g}:" in text
     assert f"low-frequency normal tilt (default {DEFAULT_FLATNESS:g};" in text
-    assert f"the photo's clipped pixels (default {DEFAULT_RELIT_HIGHLIGHT:g}; 0: none)" in text
+    assert f"the photo's clipped pixels (default {DEFAULT_RELIT_HIGHLIGHT:g}: off;" in text
     assert f"centred on the flash (default {DEFAULT_RADIAL:g};" in text
     assert f"separated (default {','.join(DEFAULT_RADIAL_MAPS)})" in text
     assert f"fitted to the photo alone (default {','.join(DEFAULT_RELIT_MAPS)})" in text
