@@ -64,7 +64,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=None,
         metavar="NAMES",
         help="maps the relit views may change in the refinement, comma-separated; the others are "
-        "fitted to the photo alone (default diffuse,normal,roughness,specular)",
+        "fitted to the photo alone (default diffuse,roughness,specular: the relit views tilted real photos' normals)",
     )
     p.add_argument(
         "--photo-maps",

@@ -779,7 +779,7 @@ def test_help_numbers_match_the_code(capsys):
     assert f"the photo's clipped pixels (default {DEFAULT_RELIT_HIGHLIGHT:g}: off;" in text
     assert f"centred on the flash (default {DEFAULT_RADIAL:g};" in text
     assert f"separated (default {','.join(DEFAULT_RADIAL_MAPS)})" in text
-    assert f"fitted to the photo alone (default {','.join(DEFAULT_RELIT_MAPS)})" in text
+    assert f"fitted to the photo alone (default {','.join(DEFAULT_RELIT_MAPS)}:" in text
     assert f"the relit views (default {','.join(DEFAULT_PHOTO_MAPS) or 'none'})" in text
     assert f"Adam per pixel (default {','.join(DEFAULT_SHARED_STEP_MAPS) or 'none'}:" in text
     assert f"at most {MAX_SIDE}" in text and f"relit views, 0-{len(EVAL_LIGHTS)}" in text
