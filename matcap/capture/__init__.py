@@ -23,10 +23,10 @@ the folder). The steps:
    the full-resolution photo and to the relit views compared at *their* resolution
    (render at full resolution, area-downsample, then the loss), a weight per view (the
    relit views' default weight is 0.03 against the photo's 1: fitting them harder cost
-   re-render accuracy), optionally routed to some maps only (``relit_maps``), the
-   padded pixels masked out, and so are the relit views' pixels over the photo's flash
-   highlight (``relit_highlight``: a disc under the flash and the clipped pixels, where
-   the relighters leave a darker disc); Adam per pixel, except for the normals, whose step size is
+   re-render accuracy), routed to the maps of ``relit_maps`` (default all but the
+   normals, which they tilted on real photos, ``results/capture_relit_maps``), the
+   padded pixels masked out, and optionally the relit views' pixels over the photo's
+   flash highlight (``relit_highlight``, off by default); Adam per pixel, except for the normals, whose step size is
    shared by their pixels (``shared_step_maps``, ``estimator.optim.MapAdam``: per-pixel
    steps creased them through the flash point, ``results/capture_steps``);
 7. the maps mapped back to the photo's pixel grid (``Frame.material_to_photo``);
