@@ -91,7 +91,7 @@ MAP_NAMES = tuple(MAP_CHANNELS)
 #: refinement's creases in the normal map along the axes through the flash point (their
 #: cause, per-pixel Adam steps, has since been removed: ``DEFAULT_SHARED_STEP_MAPS``,
 #: 31.06 -> 31.44 dB on the 13 materials, ``results/capture_steps``). Routing the relit views'
-#: refinement loss to roughness and specular only (``DEFAULT_RELIT_MAPS``, an option)
+#: refinement loss to roughness and specular only (``relit_maps``, an option)
 #: gave 30.64 with the photo's diffuse and normal, 29.47 without.
 DEFAULT_PHOTO_MAPS: tuple[str, ...] = ("diffuse", "normal")
 DEFAULT_RELIT_WEIGHT = 0.03
