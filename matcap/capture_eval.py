@@ -70,6 +70,7 @@ import kernels
 from estimator.evaluate import highlight_mask
 from estimator.model import SVBRDFEstimator
 from matcap.capture import CaptureConfig, CaptureOutput, CapturePipeline, area_downsample, photo_from_tensor
+from matcap.capture.provenance import component_settings
 from matcap.capture.vignetting import vignetting_basis, vignetting_gain
 from materials import metrics
 from materials.camera import camera_from_fov
@@ -419,13 +420,9 @@ def evaluate(
 
 
 def relighter_settings(relighter: Relighter) -> dict:
-    """A relighter's class and the settings it carries (``steps``, ``num_samples``,
-    ``large``, where it has them)."""
-    record: dict = {"class": type(relighter).__name__}
-    for attr in ("steps", "num_samples", "large"):
-        if hasattr(relighter, attr):
-            record[attr] = getattr(relighter, attr)
-    return record
+    """A relighter's class and the settings it carries (``component_settings``: ``steps``,
+    ``num_samples``, ``large``, where it has them)."""
+    return {"class": type(relighter).__name__, **component_settings(relighter)}
 
 
 def summarize(rows: list[dict]) -> list[dict]:

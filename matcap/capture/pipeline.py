@@ -58,11 +58,11 @@ def _resample(images: torch.Tensor, side: int) -> torch.Tensor:
     return F.interpolate(images, size=(side, side), mode="bilinear", align_corners=False)
 
 
-def _highlight_region(image, photo: Photo, camera, size: int, plane_size: float, cfg: CaptureConfig):
+def _highlight_region(image, photo: Photo, camera, size: int, plane_size: float, half_angle_deg: float):
     """``[size, size]`` bool, the relit views' pixels over the photo's flash highlight: the
-    disc of ``cfg.relit_highlight`` degrees under the flash, and every relit pixel that
-    covers a clipped photo pixel (8-bit formats; an EXR is taken as unclipped)."""
-    region = flash_disc(camera, size, plane_size, cfg.relit_highlight)
+    disc of ``half_angle_deg`` under the flash, and every relit pixel that covers a
+    clipped photo pixel (8-bit formats; an EXR is taken as unclipped)."""
+    region = flash_disc(camera, size, plane_size, half_angle_deg)
     if photo.format != "exr":
         clipped = (image.amax(0, keepdim=True) >= CLIPPED_LINEAR).float()
         region = region | (area_downsample(clipped, size)[0] > 0)
@@ -209,7 +209,9 @@ class CapturePipeline:
             rs = cfg.relit_side(side)
             relit_mask = area_downsample(photo_mask.float()[None], rs)[0] >= 1.0  # relit pixels all real
             if k and cfg.relit_highlight > 0:
-                relit_mask = relit_mask & ~_highlight_region(image, photo, camera, rs, frame.plane_size, cfg)
+                relit_mask = relit_mask & ~_highlight_region(
+                    image, photo, camera, rs, frame.plane_size, cfg.relit_highlight
+                )
             if cfg.falloff == "inverse-square":
                 model_image = image / falloff_factor(camera[None], height, side, frame.plane_size)[0]
             else:

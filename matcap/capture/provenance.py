@@ -1,5 +1,5 @@
 """The provenance record's parts: where a component's weights came from
-(``_component_record``) and the versions of the packages that ran (``_package_versions``).
+(``_component_record``, its settings ``component_settings``) and the versions of the packages that ran (``_package_versions``).
 """
 
 from __future__ import annotations
@@ -25,10 +25,18 @@ def _component_record(component, name: str | None) -> dict:
         config = dict(config)
         record["folder"] = str(config.get("_name_or_path")) if config.get("_name_or_path") else None
         record["config_sha256"] = _sha256({k: v for k, v in config.items() if not k.startswith("_")})
-    for attr in ("steps", "num_samples", "large"):
-        if hasattr(component, attr):
-            record[attr] = getattr(component, attr)
+    record.update(component_settings(component))
     return record
+
+
+#: Settings a relighter carries on itself rather than in a config (sampling steps,
+#: samples, the mode for photos above its native size).
+COMPONENT_SETTINGS = ("steps", "num_samples", "large")
+
+
+def component_settings(component) -> dict:
+    """The ``COMPONENT_SETTINGS`` a component has, by name."""
+    return {attr: getattr(component, attr) for attr in COMPONENT_SETTINGS if hasattr(component, attr)}
 
 
 def _package_versions() -> dict:
