@@ -109,6 +109,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=0,
         help="index of the first held-out material (16: the validation materials; default %(default)s)",
     )
+    r.add_argument(
+        "--p-crop",
+        type=float,
+        default=None,
+        metavar="P",
+        help="with --domain capture, the share of photos showing a window of the plane instead of the "
+        "whole plane (0: whole planes only; default: the capture domain's, 0.5)",
+    )
     r.add_argument("--chunk", type=int, default=4, help="materials per relight call (default %(default)s)")
     r.add_argument("--seed", type=int, default=0, help="generator seed of stochastic methods")
     r.add_argument("--overwrite", action="store_true", help="replace an output folder written by this command")
@@ -479,6 +487,7 @@ def run(args) -> int:
             samples=args.samples,
             seed=args.seed,
             domain=args.domain,
+            **({} if args.p_crop is None else {"p_crop": args.p_crop}),
             first=args.first,
         )
     except ValueError as exc:

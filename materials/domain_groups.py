@@ -60,6 +60,7 @@ __all__ = [
     "DomainGroups",
     "relighting_groups",
     "DATA_OPTIONS",
+    "RELIGHTING_DATA_OPTIONS",
     "training_texture_folders",
     "check_data_options",
     "DATA_DOMAINS",
@@ -190,6 +191,9 @@ def check_data_options(domain: str, textures: str | None, **probabilities: float
 #: The trainers' data options (their ``TrainConfig`` fields, checked by
 #: ``check_data_options``): a checkpoint resumes only with the values it was trained on.
 DATA_OPTIONS = ("domain", "textures", "p_texture", "p_mix", "p_paper")
+#: The relighter trainers' data options: ``DATA_OPTIONS`` plus ``p_crop`` (the share of
+#: items that show a window of the plane; ``relighting_groups``).
+RELIGHTING_DATA_OPTIONS = (*DATA_OPTIONS, "p_crop")
 
 
 def training_texture_folders(root: str | os.PathLike) -> list[Path]:
@@ -211,22 +215,30 @@ def relighting_groups(
     p_texture: float = 0.25,
     p_mix: float = 0.0,
     p_paper: float = 0.0,
+    p_crop: float = CaptureDomain.p_crop,
 ) -> RenderedGroups | DomainGroups:
     """The relighters' training groups over ``TRAIN_SEEDS`` (the diffusion and Bieron-style
     trainers share it, so their comparison sees the same data): ``paper``, the clean
     renders (``RenderedGroups``); ``capture``, ``CaptureDomain.relighting()`` (the photo
     as the capture pipeline hands it to a relighter; items also carry the unclipped
     ``clean`` views, the targets), with the ``REAL_DEV_TRAIN`` textures under ``textures``
-    when given. Options are checked by ``check_data_options``."""
+    when given; ``p_crop`` is ``CaptureDomain.p_crop`` (0: every item shows the whole
+    plane, as the diffusion relighter's ``large="global"`` mode hands it the photo).
+    Options are checked by ``check_data_options``."""
     check_data_options(
-        domain, None if textures is None else str(textures), p_texture=p_texture, p_mix=p_mix, p_paper=p_paper
+        domain,
+        None if textures is None else str(textures),
+        p_texture=p_texture,
+        p_mix=p_mix,
+        p_paper=p_paper,
+        p_crop=p_crop,
     )
     if domain == "paper":
         return RenderedGroups(TRAIN_SEEDS, config)
     return DomainGroups(
         TRAIN_SEEDS,
         config,
-        CaptureDomain.relighting(),
+        replace(CaptureDomain.relighting(), p_crop=p_crop),
         textures=training_texture_folders(textures) if textures is not None else [],
         p_texture=p_texture,
         p_mix=p_mix,

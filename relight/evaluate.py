@@ -26,7 +26,9 @@ plane) and paper-sampled target lights, and the input photo is what a phone give
 (exposure, white balance, noise, clipped highlight, 8-bit, JPEG); the targets are the
 unclipped renders of views 1..7 (tone-mapped for the metrics like every target). ``first``
 selects the held-out seeds ``EVAL_SEEDS[first:first + count]`` (16: the validation
-materials snapshots are chosen on, apart from Table 1's).
+materials snapshots are chosen on, apart from Table 1's); ``p_crop`` is the share of
+photos that show a window of the plane (0: whole planes, as the diffusion relighter's
+default ``large="global"`` mode sees every photo).
 
 ``evaluate`` returns the result dict; ``write_report`` writes ``relight_eval.md``,
 ``relight_eval.json`` and ``relight_eval.png`` (rows: material x light; columns: input,
@@ -37,7 +39,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import torch
@@ -86,6 +88,7 @@ class EvalConfig:
     seed: int = 0  # generator seed of stochastic relighters
     domain: str = "paper"
     first: int = 0
+    p_crop: float = CaptureDomain.p_crop
 
     def __post_init__(self) -> None:
         if self.domain not in EVAL_DOMAINS:
@@ -97,6 +100,8 @@ class EvalConfig:
                 f"count must be in 1..{len(EVAL_SEEDS) - self.first} (held-out materials from {self.first}), "
                 f"got {self.count}"
             )
+        if not 0 <= self.p_crop <= 1:
+            raise ValueError(f"p_crop must be in [0, 1], got {self.p_crop}")
         if self.size < 8:
             raise ValueError(f"size must be at least 8, got {self.size}")
         if self.chunk < 1 or self.samples < 1:
@@ -126,7 +131,7 @@ def load_eval_data(cfg: EvalConfig) -> EvalData:
     source_size = max(GroupConfig.source_size, cfg.size)
     config = GroupConfig(size=cfg.size, source_size=source_size, seed=EVAL_CROP_SEED)
     if cfg.domain == "capture":
-        return _capture_domain_data(DomainGroups(seeds, config, CaptureDomain.relighting()))
+        return _capture_domain_data(DomainGroups(seeds, config, replace(CaptureDomain.relighting(), p_crop=cfg.p_crop)))
     groups = RenderedGroups(seeds, config)
     light_pos, camera_pos = eval_lights(include_input=True)  # [8, 3]: flash, then EVAL_LIGHTS
     images = []

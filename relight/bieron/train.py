@@ -43,8 +43,9 @@ import torch
 from accelerate import Accelerator
 
 import kernels
+from materials.capture_domain import CaptureDomain
 from materials.dataset import GroupConfig, RenderedGroups
-from materials.domain_groups import DATA_OPTIONS, DomainGroups, check_data_options, relighting_groups
+from materials.domain_groups import RELIGHTING_DATA_OPTIONS, DomainGroups, check_data_options, relighting_groups
 from relight.bieron.model import BieronRelighter
 from training.checkpoint import MODEL_DIR, check_resumed_run, latest_checkpoint, load_checkpoint, load_init_from
 from training.config import config_of, differences, from_dict, model_config, parse, to_dict
@@ -104,6 +105,8 @@ class TrainConfig:
         p_texture: with ``capture`` and ``textures``, the probability of a texture item.
         p_mix: with ``capture``, the probability that a procedural item blends two.
         p_paper: with ``capture``, the probability of a clean paper-setup item instead.
+        p_crop: with ``capture``, the probability of a window of the plane
+            (``CaptureDomain.p_crop``; 0: whole planes only).
         init_from: a saved ``BieronRelighter`` folder whose weights start a new run (same
             architecture as ``model``); ignored when ``ckpt_dir`` has a checkpoint.
         model: the architecture (``BieronRelighter``'s arguments; the trainer's default
@@ -133,6 +136,7 @@ class TrainConfig:
     p_texture: float = 0.25
     p_mix: float = 0.0
     p_paper: float = 0.0
+    p_crop: float = CaptureDomain.p_crop
     init_from: str | None = None
     model: BieronModelConfig = field(default_factory=lambda: BieronModelConfig(residual="lambertian"))
 
@@ -143,7 +147,14 @@ class TrainConfig:
             raise ValueError(f"schedule must be one of {SCHEDULES}, got {self.schedule!r}")
         if not 1 <= self.targets_per_group <= 7:
             raise ValueError(f"targets_per_group must be in 1..7 (views 1..7), got {self.targets_per_group}")
-        check_data_options(self.domain, self.textures, p_texture=self.p_texture, p_mix=self.p_mix, p_paper=self.p_paper)
+        check_data_options(
+            self.domain,
+            self.textures,
+            p_texture=self.p_texture,
+            p_mix=self.p_mix,
+            p_paper=self.p_paper,
+            p_crop=self.p_crop,
+        )
         for name in ("batch", "steps", "ckpt_every", "keep"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
@@ -179,7 +190,7 @@ def main(cfg: TrainConfig) -> dict:
 
     folder = latest_checkpoint(cfg.ckpt_dir) if cfg.resume else None
     if folder is not None:
-        check_resumed_run(folder, cfg, DATA_OPTIONS)
+        check_resumed_run(folder, cfg, RELIGHTING_DATA_OPTIONS)
         model = BieronRelighter.from_pretrained(folder / MODEL_DIR)
         changed = differences(cfg.model, config_of(BieronModelConfig, model))
         if changed:
@@ -199,7 +210,13 @@ def main(cfg: TrainConfig) -> dict:
     model, optimizer = accelerator.prepare(model, optimizer)
     config = GroupConfig(size=cfg.size, views=8, seed=cfg.seed)
     data = relighting_groups(
-        config, cfg.domain, cfg.textures, p_texture=cfg.p_texture, p_mix=cfg.p_mix, p_paper=cfg.p_paper
+        config,
+        cfg.domain,
+        cfg.textures,
+        p_texture=cfg.p_texture,
+        p_mix=cfg.p_mix,
+        p_paper=cfg.p_paper,
+        p_crop=cfg.p_crop,
     )
 
     def step_fn(step: int) -> tuple[torch.Tensor, dict]:

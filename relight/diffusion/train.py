@@ -32,8 +32,15 @@ from accelerate import Accelerator
 from diffusers.training_utils import EMAModel
 from torch.utils.data import DataLoader, Subset
 
+from materials.capture_domain import CaptureDomain
 from materials.dataset import GroupConfig, RenderedGroups
-from materials.domain_groups import DATA_DOMAINS, DATA_OPTIONS, DomainGroups, check_data_options, relighting_groups
+from materials.domain_groups import (
+    DATA_DOMAINS,
+    RELIGHTING_DATA_OPTIONS,
+    DomainGroups,
+    check_data_options,
+    relighting_groups,
+)
 from relight.diffusion.config import TINY_TRAINING_DEFAULTS
 from relight.diffusion.model import RelightDiffusion, make_train_scheduler
 from relight.diffusion.objective import diffusion_loss
@@ -120,6 +127,9 @@ class TrainConfig:
         p_mix: with ``capture``, the probability that a procedural item blends two.
         p_paper: with ``capture``, the probability that an item is the paper's clean
             render instead (keeps what the shipped model was trained on in the stream).
+        p_crop: with ``capture``, the probability that an item shows a random window of
+            the plane (``CaptureDomain.p_crop``); 0 trains on whole planes only, what
+            the relighter's default ``large="global"`` mode gives the model.
         init_from: a saved ``RelightDiffusion`` folder (``save_pretrained``, e.g.
             ``weights/diffusion``) whose weights start a new run; its architecture must
             equal ``model``. Ignored when ``ckpt_dir`` has a checkpoint (the run resumes).
@@ -145,6 +155,7 @@ class TrainConfig:
     p_texture: float = 0.25
     p_mix: float = 0.0
     p_paper: float = 0.0
+    p_crop: float = CaptureDomain.p_crop
     init_from: str | None = None
     model: DiffusionModelConfig = field(default_factory=DiffusionModelConfig)
 
@@ -159,7 +170,14 @@ class TrainConfig:
             raise ValueError(f"ema_decay must lie in [0, 1), got {self.ema_decay}")
         if not 0 <= self.terminal_fraction <= 1:
             raise ValueError(f"terminal_fraction must lie in [0, 1], got {self.terminal_fraction}")
-        check_data_options(self.domain, self.textures, p_texture=self.p_texture, p_mix=self.p_mix, p_paper=self.p_paper)
+        check_data_options(
+            self.domain,
+            self.textures,
+            p_texture=self.p_texture,
+            p_mix=self.p_mix,
+            p_paper=self.p_paper,
+            p_crop=self.p_crop,
+        )
         for name in ("steps", "groups_per_step", "ckpt_every", "keep_checkpoints"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
@@ -175,7 +193,13 @@ def training_data(cfg: TrainConfig) -> RenderedGroups | DomainGroups:
     resolution (``TrainConfig.domain``; ``materials.domain_groups.relighting_groups``)."""
     config = GroupConfig(size=cfg.model.resolution, views=8, seed=cfg.seed)
     return relighting_groups(
-        config, cfg.domain, cfg.textures, p_texture=cfg.p_texture, p_mix=cfg.p_mix, p_paper=cfg.p_paper
+        config,
+        cfg.domain,
+        cfg.textures,
+        p_texture=cfg.p_texture,
+        p_mix=cfg.p_mix,
+        p_paper=cfg.p_paper,
+        p_crop=cfg.p_crop,
     )
 
 
@@ -195,7 +219,7 @@ def main(cfg: TrainConfig) -> Path | None:
     torch.manual_seed(cfg.seed)
     folder = latest_checkpoint(cfg.ckpt_dir)
     if folder is not None:
-        check_resumed_run(folder, cfg, DATA_OPTIONS)
+        check_resumed_run(folder, cfg, RELIGHTING_DATA_OPTIONS)
         model = RelightDiffusion.from_pretrained(folder / MODEL_DIR)
         # sd21_path is where the frozen weights are read from, not the architecture.
         changed = differences(cfg.model, config_of(DiffusionModelConfig, model), ignore=("sd21_path",))

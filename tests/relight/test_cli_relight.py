@@ -153,5 +153,9 @@ def test_eval_relighting_in_the_capture_domain(tmp_path, capsys):
     blob = json.loads((tmp_path / "c" / "relight_eval.json").read_text())
     assert blob["config"]["domain"] == "capture" and blob["config"]["first"] == 16
     assert len(blob["camera"]) == 2 and len(blob["lights"]) == 2 and len(blob["lights"][0]) == 7
+    assert blob["config"]["p_crop"] == 0.5  # the capture domain's share of windows
+    # --p-crop 0: whole planes (what the diffusion relighter's global mode sees).
+    assert main([*argv, "--p-crop", "0", "--out", str(tmp_path / "w")]) == 0
+    assert json.loads((tmp_path / "w" / "relight_eval.json").read_text())["config"]["p_crop"] == 0.0
     assert main([*argv, "--first", "63", "--out", str(tmp_path / "bad")]) == 2
     assert "count must be in 1..1" in capsys.readouterr().err and not (tmp_path / "bad").exists()

@@ -8,6 +8,7 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
+from materials.capture_domain import CaptureDomain
 from materials.dataset import GroupConfig, RenderedGroups
 from materials.domain_groups import REAL_DEV_TRAIN, DomainGroups, relighting_groups, save_texture_folder
 from materials.procedural import generate
@@ -128,6 +129,25 @@ def test_capture_domain_targets_the_unclipped_views(tmp_path):
     assert type(relighting_groups(GroupConfig(size=16, views=8, seed=0))) is RenderedGroups
 
 
+def test_p_crop_zero_trains_on_whole_planes():
+    """``p_crop`` = 0: every capture-domain item shows the whole plane, so its camera stays
+    at a height the geometry samples (``CaptureDomain.camera_height``); with ``p_crop`` = 1
+    every item is a window, which scales positions by 4 / side and lifts some cameras
+    above that range (a window of side s is the plane seen from 4 / s times as high)."""
+    config = GroupConfig(size=8, views=8, seed=3)
+    low, high = CaptureDomain.camera_height
+    heights = {}
+    for p in (0.0, 1.0):
+        data = relighting_groups(config, "capture", p_crop=p)
+        assert type(data) is DomainGroups and data.domain.p_crop == p
+        heights[p] = torch.stack([data[i]["camera_pos"][0, 2] for i in range(24)])
+    assert ((heights[0.0] >= low - 1e-4) & (heights[0.0] <= high + 1e-4)).all()
+    assert (heights[1.0] > high).sum() >= 4
+    with pytest.raises(ValueError, match="p_crop"):
+        relighting_groups(config, "capture", p_crop=1.5)
+    assert parse_args(["--domain", "capture", "--p-crop", "0"]).p_crop == 0.0
+
+
 def test_capture_domain_fine_tune_from_saved_weights_and_resume_checks(tmp_path):
     root = _texture_root(tmp_path / "tex")
     start = BieronRelighter(**dataclasses.asdict(TINY))
@@ -143,6 +163,8 @@ def test_capture_domain_fine_tune_from_saved_weights_and_resume_checks(tmp_path)
     # A checkpoint resumes only with the data (and init_from) it was trained on.
     with pytest.raises(ValueError, match="p_paper"):
         main(_cfg(tmp_path, 3, **{**capture, "p_paper": 0.0}))
+    with pytest.raises(ValueError, match="p_crop"):
+        main(_cfg(tmp_path, 3, **{**capture, "p_crop": 0.0}))
     with pytest.raises(ValueError, match="domain"):
         main(_cfg(tmp_path, 3, init_from=capture["init_from"]))
     with pytest.raises(ValueError, match="another run"):
