@@ -16,7 +16,7 @@ materials:
 The strong-highlight check: on the most specular third of the materials (score
 ``mean(specular) * (1 - mean(roughness))``), the diffuse-map MSE inside the flash
 highlight (pixels whose tone-mapped flash image is near saturation, or within
-``HIGHLIGHT_RADIUS`` of the mirror point under the camera), 1 vs 8 inputs. This is where a
+``materials.highlight.HIGHLIGHT_RADIUS`` of the mirror point under the camera), 1 vs 8 inputs. This is where a
 single flash photo bakes the highlight into the albedo (SPEC section 1).
 
 ``python -m estimator evaluate --model PATH --num 16 --size 64 --refine-steps 100``
@@ -41,6 +41,7 @@ from estimator.model import SVBRDFEstimator
 from estimator.refine import refine
 from materials import metrics
 from materials.dataset import EVAL_SEEDS, GroupConfig, RenderedGroups
+from materials.highlight import highlight_mask
 from materials.io.atomic import atomic_file
 from materials.lights import EVAL_CAMERA, EVAL_LIGHTS, eval_lights
 from materials.types import Material
@@ -49,9 +50,6 @@ __all__ = [
     "evaluate",
     "write_report",
     "HELDOUT_LIGHTS",
-    "HIGHLIGHT_RADIUS",
-    "SATURATION",
-    "highlight_mask",
     "specular_score",
     "EvalRow",
     "rerender_metrics",
@@ -80,13 +78,6 @@ HELDOUT_LIGHTS: tuple[tuple[float, float, float], ...] = (
     (0.0, -1.5, 6.5),
     (1.061, -1.061, 6.5),
 )
-#: Tone-mapped value above which a flash pixel counts as saturated (the 8-bit photo
-#: clips at 1; 0.98 catches the clipped core and its immediate rim).
-SATURATION = 0.98
-#: Radius, in plane units (plane side 4), of the disc around the flash's mirror point that
-#: counts as highlight whatever its value: 0.5 = 1/8 of the plane side, the extent of a
-#: GGX lobe at roughness ~0.3 seen from height 4 (tan of the ~7 degree half-width x 4).
-HIGHLIGHT_RADIUS = 0.5
 #: Crop seed of the evaluation materials (``GroupConfig.seed``); the materials are
 #: ``EVAL_SEEDS``, disjoint from the training seeds.
 EVAL_CROP_SEED = 0
@@ -120,20 +111,6 @@ def specular_score(material: Material) -> torch.Tensor:
     """Per-material specularity ``mean(specular) * (1 - mean(roughness))``: high for
     bright, sharp highlights. ``[B]`` for a batched material."""
     return material.specular.mean((-3, -2, -1)) * (1 - material.roughness.mean((-3, -2, -1)))
-
-
-def highlight_mask(
-    flash: torch.Tensor, camera_pos: Sequence[float] = EVAL_CAMERA, plane_size: float = 4.0
-) -> torch.Tensor:
-    """Highlight region of flash photos ``[B, 3, H, W]`` (linear): tone-mapped max channel
-    >= ``SATURATION``, or within ``HIGHLIGHT_RADIUS`` of the mirror point (for a light at
-    the camera, the point under it). Returns ``[B, 1, H, W]`` bool."""
-    b, _, h, w = flash.shape
-    saturated = kernels.tonemap(flash).amax(1, keepdim=True) >= SATURATION
-    x = ((torch.arange(w, dtype=torch.float32) + 0.5) / w - 0.5) * plane_size
-    y = -((torch.arange(h, dtype=torch.float32) + 0.5) / h - 0.5) * plane_size
-    disc = (x[None, :] - camera_pos[0]) ** 2 + (y[:, None] - camera_pos[1]) ** 2 <= HIGHLIGHT_RADIUS**2
-    return saturated | disc.to(flash.device)[None, None]
 
 
 def rerender_metrics(pred: Material, true: Material) -> tuple[torch.Tensor, torch.Tensor]:
@@ -196,7 +173,7 @@ def evaluate(
         b = true.diffuse.shape[0]
         with torch.no_grad():
             images = kernels.render(*true.map_tensors(), light_pos8, camera_pos8)  # [b, 8, 3, H, W]
-        mask = highlight_mask(images[:, 0])
+        mask = highlight_mask(images[:, 0], EVAL_CAMERA)
         scores.append(specular_score(true))
         has_mask.append(mask.flatten(1).any(1))
         for n, refined in configs:

@@ -25,7 +25,7 @@ Scores, per material and run (``score``):
 
 - map MSE of diffuse, normal, roughness, specular (maps in [0, 1] / unit normals, at the
   photo's resolution), and the diffuse MSE inside the flash highlight
-  (``estimator.evaluate.highlight_mask``: the region the paper is about);
+  (``materials.highlight.highlight_mask``: the region the paper is about);
 - re-render PSNR / SSIM / FLIP: predicted and true maps rendered under ``NOVEL_LIGHTS``
   (128 lights drawn once from the paper's training distribution, x, y ~ U[-4, 4],
   z ~ U[4, 8], seed ``NOVEL_LIGHT_SEED``; none is a relighting light) from the capture
@@ -67,13 +67,13 @@ import torch
 from tqdm import tqdm
 
 import kernels
-from estimator.evaluate import highlight_mask
 from estimator.model import SVBRDFEstimator
 from matcap.capture import CaptureConfig, CaptureOutput, CapturePipeline, area_downsample, photo_from_tensor
 from matcap.capture.provenance import component_settings
 from matcap.capture.vignetting import vignetting_basis, vignetting_gain
 from materials import metrics
 from materials.camera import camera_from_fov
+from materials.highlight import highlight_mask
 from materials.io.photo import MIN_PHOTO_SIDE
 from materials.types import Material
 from relight.interface import Relighter

@@ -13,7 +13,7 @@ the ground truth:
   the pipeline assumed (``psnr``: what its re-renders show) and in the photo's true
   lighting (``psnr_photo_light``: the maps alone; the two differ only when ``--falloff``
   does not match the photo);
-- diffuse MSE over the map, and inside the flash highlight (``estimator.evaluate.highlight_mask``);
+- diffuse MSE over the map, and inside the flash highlight (``materials.highlight.highlight_mask``);
 - roughness MSE; relit-view PSNR (tone-mapped, 64 px, against the true maps rendered at
   full resolution and area-downsampled) when the run relights.
 
@@ -92,13 +92,14 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     import kernels
-    from estimator.evaluate import HELDOUT_LIGHTS, highlight_mask
+    from estimator.evaluate import HELDOUT_LIGHTS
     from matcap.capture import CaptureConfig, CapturePipeline, area_downsample, photo_from_tensor
     from matcap.capture_eval import GroundTruthRelighter, as_8bit, flash_photo, photo_render_kwargs
     from matcap.estimate import load_estimator
     from materials import metrics
     from materials.camera import camera_from_fov
     from materials.domain_groups import load_texture_folder
+    from materials.highlight import highlight_mask
     from relight.interface import get_relighter
 
     torch.set_num_threads(args.threads)

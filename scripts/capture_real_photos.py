@@ -34,7 +34,7 @@ DEFAULT_OUT = Path(__file__).resolve().parents[1] / "results" / "capture_real_ph
 #: Tile side of the picture, pixels.
 TILE = 128
 #: Disc and ring of ``highlight_ratio``, plane units (plane side 4): the disc is
-#: ``estimator.evaluate.HIGHLIGHT_RADIUS``; the ring is close enough to see the same
+#: ``materials.highlight.HIGHLIGHT_RADIUS``; the ring is close enough to see the same
 #: texture, far enough to be outside a flash highlight of roughness <~0.4.
 DISC, RING = 0.5, (0.75, 1.25)
 

@@ -122,9 +122,6 @@ DEFAULT_RELIT_MAPS: tuple[str, ...] = ("diffuse", "roughness", "specular")
 #: photos 0.103 -> 0.124), and ground-truth views lose 0.1-0.7 dB (their correct pixels
 #: under the flash are dropped too). 6 is the setting measured for held-out photos.
 DEFAULT_RELIT_HIGHLIGHT = 0.0
-#: A photo pixel at or above this linear value in any channel counts as clipped for
-#: ``relit_highlight`` (tone-mapped 0.98: ``estimator.evaluate.SATURATION``).
-CLIPPED_LINEAR = 0.98**2.2
 #: Adam rate of the per-pixel logits and normal slopes (``estimator.refine.refine_maps``'s):
 #: every pixel's step for the maps with per-pixel steps, the root-mean-square step over
 #: the pixels for the maps in ``shared_step_maps``.

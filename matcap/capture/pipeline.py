@@ -16,7 +16,7 @@ from tqdm.auto import tqdm
 
 import kernels
 from estimator.model import SVBRDFEstimator
-from matcap.capture.config import CLIPPED_LINEAR, DEFAULT_RELIGHTER, MAX_SIDE, RENDER_LIGHTS, CaptureConfig
+from matcap.capture.config import DEFAULT_RELIGHTER, MAX_SIDE, RENDER_LIGHTS, CaptureConfig
 from matcap.capture.output import CaptureOutput, _preview_sheet
 from matcap.capture.photo import photo_from_tensor
 from matcap.capture.provenance import _component_record, _package_versions
@@ -24,6 +24,7 @@ from matcap.capture.refine import refine_full_resolution, refine_memory_bytes
 from matcap.capture.relighting import native_resolution, relight_views
 from matcap.capture.scene import CaptureScene, area_downsample, capture_scene, falloff_factor, flash_disc
 from materials.frame import Frame, prepare_photo
+from materials.highlight import saturated
 from materials.io.photo import MIN_PHOTO_SIDE, Photo
 from materials.lights import EVAL_LIGHTS
 from materials.types import Capture, Material
@@ -64,7 +65,7 @@ def _highlight_region(image, photo: Photo, camera, size: int, plane_size: float,
     clipped photo pixel (8-bit formats; an EXR is taken as unclipped)."""
     region = flash_disc(camera, size, plane_size, half_angle_deg)
     if photo.format != "exr":
-        clipped = (image.amax(0, keepdim=True) >= CLIPPED_LINEAR).float()
+        clipped = saturated(image[None])[0].float()
         region = region | (area_downsample(clipped, size)[0] > 0)
     return region
 

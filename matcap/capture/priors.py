@@ -59,7 +59,7 @@ def tilt_energy(
 
 #: Rings of the flash-independence prior per side of the (padded, square) photo: rings
 #: 1/32 of the side wide, 0.125 scene units on the ``dgrsise`` plane of side 4, so the
-#: evaluation's highlight disc (radius 0.5, ``estimator.evaluate.HIGHLIGHT_RADIUS``) spans
+#: evaluation's highlight disc (radius 0.5, ``materials.highlight.HIGHLIGHT_RADIUS``) spans
 #: four of them, fine enough to see the rim of a 0.5-wide highlight, coarse enough that
 #: the innermost ring holds ~3 of every 1,000 pixels.
 RADIAL_RINGS = 32

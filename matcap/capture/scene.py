@@ -14,6 +14,7 @@ import torch
 from matcap.capture.config import DEFAULT_FALLOFF, RENDER_LIGHTS
 from materials.camera import DEFAULT_FOV_DEG, camera_height, fov_from_exif
 from materials.frame import Frame
+from materials.highlight import plane_disc
 from materials.io.photo import Photo
 from materials.units import model_gain
 
@@ -104,10 +105,7 @@ def flash_disc(camera_pos: torch.Tensor, size: int, plane_size: float, half_angl
     if not (math.isfinite(half_angle_deg) and 0 <= half_angle_deg < 90):
         raise ValueError(f"half angle must lie in [0, 90) degrees, got {half_angle_deg}")
     x0, y0, h = (float(v) for v in camera_pos.reshape(3))
-    radius = h * math.tan(math.radians(half_angle_deg))
-    centres = ((torch.arange(size, dtype=torch.float64) + 0.5) / size - 0.5) * plane_size
-    x, y = centres[None, :], -centres[:, None]
-    return (x - x0) ** 2 + (y - y0) ** 2 <= radius**2
+    return plane_disc((x0, y0), h * math.tan(math.radians(half_angle_deg)), (size, size), plane_size)
 
 
 def capture_scene(

@@ -5,9 +5,7 @@ from __future__ import annotations
 import json
 import math
 
-import torch
-
-from estimator.evaluate import HELDOUT_LIGHTS, evaluate, highlight_mask
+from estimator.evaluate import HELDOUT_LIGHTS, evaluate
 from materials.dataset import EVAL_SEEDS
 from materials.lights import EVAL_CAMERA, EVAL_LIGHTS
 
@@ -18,15 +16,6 @@ def test_heldout_lights_are_not_input_lights():
     for p in HELDOUT_LIGHTS:
         assert min(math.dist(p, q) for q in inputs) > 0.5
         assert p[2] > 0
-
-
-def test_highlight_mask_covers_the_disc_under_the_camera():
-    dark = torch.zeros(1, 3, 32, 32)
-    mask = highlight_mask(dark)
-    assert mask.shape == (1, 1, 32, 32) and mask[0, 0, 16, 16] and not mask[0, 0, 0, 0]
-    bright = dark.clone()
-    bright[..., 0, 0] = 5.0
-    assert highlight_mask(bright)[0, 0, 0, 0]
 
 
 def test_evaluate_rows_and_report(tiny_model, tmp_path):
