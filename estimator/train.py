@@ -39,6 +39,7 @@ from materials.domain_groups import (
     DATA_OPTIONS,
     DomainGroups,
     check_data_options,
+    data_options,
     training_texture_folders,
 )
 from materials.io.atomic import atomic_file, atomic_folder
@@ -185,14 +186,7 @@ class TrainConfig:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.normal_loss not in NORMAL_LOSSES:
             raise ValueError(f"normal_loss must be one of {NORMAL_LOSSES}, got {self.normal_loss!r}")
-        check_data_options(
-            self.domain,
-            self.textures,
-            p_texture=self.p_texture,
-            p_mix=self.p_mix,
-            p_paper=self.p_paper,
-            p_relit=self.p_relit,
-        )
+        check_data_options(**data_options(self, (*DATA_OPTIONS, "p_relit")))
         if self.min_views > self.max_views:
             raise ValueError(f"min_views ({self.min_views}) must not exceed max_views ({self.max_views})")
         factor = 2 ** (len(self.model.channel_mults) - 1)

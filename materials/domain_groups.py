@@ -34,6 +34,7 @@ import os
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -61,6 +62,7 @@ __all__ = [
     "relighting_groups",
     "DATA_OPTIONS",
     "RELIGHTING_DATA_OPTIONS",
+    "data_options",
     "training_texture_folders",
     "check_data_options",
     "DATA_DOMAINS",
@@ -194,6 +196,12 @@ DATA_OPTIONS = ("domain", "textures", "p_texture", "p_mix", "p_paper")
 #: The relighter trainers' data options: ``DATA_OPTIONS`` plus ``p_crop`` (the share of
 #: items that show a window of the plane; ``relighting_groups``).
 RELIGHTING_DATA_OPTIONS = (*DATA_OPTIONS, "p_crop")
+
+
+def data_options(cfg: object, names: Sequence[str] = RELIGHTING_DATA_OPTIONS) -> dict[str, Any]:
+    """A trainer config's data options by name, as keywords for ``check_data_options``
+    and ``relighting_groups`` (one list of the options per trainer, not one per call)."""
+    return {name: getattr(cfg, name) for name in names}
 
 
 def training_texture_folders(root: str | os.PathLike) -> list[Path]:

@@ -45,7 +45,13 @@ from accelerate import Accelerator
 import kernels
 from materials.capture_domain import CaptureDomain
 from materials.dataset import GroupConfig, RenderedGroups
-from materials.domain_groups import RELIGHTING_DATA_OPTIONS, DomainGroups, check_data_options, relighting_groups
+from materials.domain_groups import (
+    RELIGHTING_DATA_OPTIONS,
+    DomainGroups,
+    check_data_options,
+    data_options,
+    relighting_groups,
+)
 from relight.bieron.model import BieronRelighter
 from training.checkpoint import MODEL_DIR, check_resumed_run, latest_checkpoint, load_checkpoint, load_init_from
 from training.config import config_of, differences, from_dict, model_config, parse, to_dict
@@ -147,14 +153,7 @@ class TrainConfig:
             raise ValueError(f"schedule must be one of {SCHEDULES}, got {self.schedule!r}")
         if not 1 <= self.targets_per_group <= 7:
             raise ValueError(f"targets_per_group must be in 1..7 (views 1..7), got {self.targets_per_group}")
-        check_data_options(
-            self.domain,
-            self.textures,
-            p_texture=self.p_texture,
-            p_mix=self.p_mix,
-            p_paper=self.p_paper,
-            p_crop=self.p_crop,
-        )
+        check_data_options(**data_options(self))
         for name in ("batch", "steps", "ckpt_every", "keep"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
@@ -209,15 +208,7 @@ def main(cfg: TrainConfig) -> dict:
         accelerator.print(resumed_line(state))
     model, optimizer = accelerator.prepare(model, optimizer)
     config = GroupConfig(size=cfg.size, views=8, seed=cfg.seed)
-    data = relighting_groups(
-        config,
-        cfg.domain,
-        cfg.textures,
-        p_texture=cfg.p_texture,
-        p_mix=cfg.p_mix,
-        p_paper=cfg.p_paper,
-        p_crop=cfg.p_crop,
-    )
+    data = relighting_groups(config, **data_options(cfg))
 
     def step_fn(step: int) -> tuple[torch.Tensor, dict]:
         batch = sample_batch(data, cfg, step, accelerator.process_index)

@@ -39,6 +39,7 @@ from materials.domain_groups import (
     RELIGHTING_DATA_OPTIONS,
     DomainGroups,
     check_data_options,
+    data_options,
     relighting_groups,
 )
 from relight.diffusion.config import TINY_TRAINING_DEFAULTS
@@ -170,14 +171,7 @@ class TrainConfig:
             raise ValueError(f"ema_decay must lie in [0, 1), got {self.ema_decay}")
         if not 0 <= self.terminal_fraction <= 1:
             raise ValueError(f"terminal_fraction must lie in [0, 1], got {self.terminal_fraction}")
-        check_data_options(
-            self.domain,
-            self.textures,
-            p_texture=self.p_texture,
-            p_mix=self.p_mix,
-            p_paper=self.p_paper,
-            p_crop=self.p_crop,
-        )
+        check_data_options(**data_options(self))
         for name in ("steps", "groups_per_step", "ckpt_every", "keep_checkpoints"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
@@ -192,15 +186,7 @@ def training_data(cfg: TrainConfig) -> RenderedGroups | DomainGroups:
     """The training groups of ``cfg.domain`` over ``TRAIN_SEEDS``, 8 views at the model's
     resolution (``TrainConfig.domain``; ``materials.domain_groups.relighting_groups``)."""
     config = GroupConfig(size=cfg.model.resolution, views=8, seed=cfg.seed)
-    return relighting_groups(
-        config,
-        cfg.domain,
-        cfg.textures,
-        p_texture=cfg.p_texture,
-        p_mix=cfg.p_mix,
-        p_paper=cfg.p_paper,
-        p_crop=cfg.p_crop,
-    )
+    return relighting_groups(config, **data_options(cfg))
 
 
 def _initial_model(cfg: TrainConfig) -> RelightDiffusion:
