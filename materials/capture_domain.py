@@ -201,15 +201,18 @@ class CaptureDomain:
         return cls(geometry="paper", p_falloff=0.0).without_photometric()
 
     @classmethod
-    def relighting(cls) -> CaptureDomain:
+    def relighting(cls, p_crop: float | None = None) -> CaptureDomain:
         """The capture domain as the capture pipeline's relighter sees it
         (``matcap.capture``): a fixed camera with the paper's light sampling for views
         1.. (the pipeline relights to lights around a camera that does not move) and no
         falloff (the pipeline divides the photo by its flash's 1/d^2 factor before
         relighting and multiplies the relit views by theirs); every photometric effect
         of the photo (exposure, white balance, noise, clipped highlights, 8-bit, JPEG) and
-        the geometry's height, offset and crops as in ``CaptureDomain()``."""
-        return cls(p_collocated=0.0, p_falloff=0.0)
+        the geometry's height, offset and crops as in ``CaptureDomain()``; ``p_crop``, when
+        given, the share of windows (0: whole planes, what the diffusion relighter's ``large="global"``
+        mode sees)."""
+        domain = cls(p_collocated=0.0, p_falloff=0.0)
+        return domain if p_crop is None else replace(domain, p_crop=p_crop)
 
     def without_photometric(self) -> CaptureDomain:
         """The same geometry and falloff, every photometric effect switched off."""

@@ -246,7 +246,7 @@ def relighting_groups(
     return DomainGroups(
         TRAIN_SEEDS,
         config,
-        replace(CaptureDomain.relighting(), p_crop=p_crop),
+        CaptureDomain.relighting(p_crop),
         textures=training_texture_folders(textures) if textures is not None else [],
         p_texture=p_texture,
         p_mix=p_mix,

@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
@@ -131,7 +131,7 @@ def load_eval_data(cfg: EvalConfig) -> EvalData:
     source_size = max(GroupConfig.source_size, cfg.size)
     config = GroupConfig(size=cfg.size, source_size=source_size, seed=EVAL_CROP_SEED)
     if cfg.domain == "capture":
-        return _capture_domain_data(DomainGroups(seeds, config, replace(CaptureDomain.relighting(), p_crop=cfg.p_crop)))
+        return _capture_domain_data(DomainGroups(seeds, config, CaptureDomain.relighting(cfg.p_crop)))
     groups = RenderedGroups(seeds, config)
     light_pos, camera_pos = eval_lights(include_input=True)  # [8, 3]: flash, then EVAL_LIGHTS
     images = []
