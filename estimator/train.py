@@ -114,6 +114,10 @@ class TrainConfig:
         p_paper: with ``capture``, the probability that an item is rendered in the
             paper's clean setup instead (``DomainGroups``' ``p_paper``): keeps the clean,
             unclipped inputs a capture-only fine-tune forgets.
+        camera_height: with ``capture``, ``CaptureDomain.camera_height`` (``LO,HI``, the
+            log-uniform range of the capture items' camera height, plane units): a
+            fine-tune can weight a geometry, e.g. the MaterialGAN captures' far phone
+            (height about 9.76, issue 16), without touching the other randomisation.
         relit_pool: a relit pool file (``materials.relit_pool``,
             ``scripts/make_relit_pool.py``): a share ``p_relit`` of the items are the
             pool's paper-domain groups with views 1.. made by a relighter instead of
@@ -160,6 +164,7 @@ class TrainConfig:
     p_texture: float = 0.25
     p_mix: float = 0.0
     p_paper: float = 0.0
+    camera_height: tuple[float, ...] = CaptureDomain.camera_height
     relit_pool: str | None = None
     p_relit: float = 0.5
     map_weight: float = MAP_WEIGHT
@@ -187,6 +192,12 @@ class TrainConfig:
         if self.normal_loss not in NORMAL_LOSSES:
             raise ValueError(f"normal_loss must be one of {NORMAL_LOSSES}, got {self.normal_loss!r}")
         check_data_options(**data_options(self, (*DATA_OPTIONS, "p_relit")))
+        self.camera_height = tuple(float(h) for h in self.camera_height)  # a list when read back from JSON
+        if len(self.camera_height) != 2:
+            raise ValueError(f"camera_height must be LO,HI, got {self.camera_height}")
+        if self.domain == "paper" and self.camera_height != CaptureDomain.camera_height:
+            raise ValueError("camera_height needs domain='capture' (the paper's data has its own heights, 4-8)")
+        self.capture_domain()  # checks the range
         if self.min_views > self.max_views:
             raise ValueError(f"min_views ({self.min_views}) must not exceed max_views ({self.max_views})")
         factor = 2 ** (len(self.model.channel_mults) - 1)
@@ -194,6 +205,12 @@ class TrainConfig:
             raise ValueError(f"size {self.size} must be a multiple of {factor} (model levels)")
         if self.source_size is None:
             self.source_size = 2 * self.size
+
+    def capture_domain(self) -> CaptureDomain:
+        """The capture domain of ``domain='capture'`` items: ``CaptureDomain()`` with this
+        run's ``camera_height``."""
+        lo, hi = self.camera_height
+        return CaptureDomain(camera_height=(lo, hi))
 
     def group_config(self) -> GroupConfig:
         return GroupConfig(size=self.size, views=self.max_views, source_size=self.source_size, seed=self.seed)
@@ -224,7 +241,7 @@ def _domain_data(cfg: TrainConfig) -> Dataset:
     return DomainGroups(
         TRAIN_SEEDS,
         cfg.group_config(),
-        CaptureDomain(),
+        cfg.capture_domain(),
         textures=textures,
         p_texture=cfg.p_texture,
         p_mix=cfg.p_mix,
@@ -297,7 +314,7 @@ def generated_views(batch: dict, views: list[int]) -> torch.Tensor:
 
 def _resume_model(folder: Path, cfg: TrainConfig, print_fn) -> SVBRDFEstimator:
     """The model of checkpoint ``folder``, after checking it belongs to this run."""
-    check_resumed_run(folder, cfg, (*DATA_OPTIONS, "relit_pool", "p_relit"))
+    check_resumed_run(folder, cfg, (*DATA_OPTIONS, "camera_height", "relit_pool", "p_relit"))
     saved_cfg = read_trainer_state(folder)["config"]
     model = SVBRDFEstimator.from_pretrained(folder / MODEL_DIR)
     changed = differences(cfg.model, config_of(EstimatorModelConfig, model))

@@ -232,6 +232,8 @@ def check_resumed_run(folder: str | Path, cfg: Any, data_fields: typing.Sequence
     defaults = {f.name: f.default for f in dataclasses.fields(cfg)}
     for name in data_fields:
         before = saved.get(name, defaults[name])
+        if isinstance(before, list):  # a tuple option, read back from JSON
+            before = tuple(before)
         if before != getattr(cfg, name):
             raise ValueError(
                 f"{folder}: the checkpoint was trained with {name}={before!r}, the run asks for {getattr(cfg, name)!r}; "

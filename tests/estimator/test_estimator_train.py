@@ -437,3 +437,26 @@ def test_init_from_grows_the_generated_flag_without_changing_the_output(tmp_path
             SVBRDFEstimator(**dataclasses.asdict(TINY)),
             _tiny_train_config(tmp_path, init_from=str(tmp_path / "flagged")),
         )
+
+
+def test_camera_height_sets_the_capture_items_heights(tmp_path):
+    # View 0's camera height of capture items (p_paper 0): never below the range's low end
+    # (a crop only raises it: the window is rescaled to the plane's side), and the
+    # default range reaches lower. The range also survives the checkpoint's JSON.
+    def heights(**kw) -> torch.Tensor:
+        data = training_data(_tiny_train_config(tmp_path, domain="capture", **kw))
+        return torch.stack([data[i]["camera_pos"][0, 2] for i in range(32)])
+
+    far = heights(camera_height=(6.0, 13.0))
+    assert far.min() >= 6.0 - 1e-4
+    assert heights().min() < 6.0
+    assert parse_args(["--domain", "capture", "--camera-height", "6,13"]).camera_height == (6.0, 13.0)
+    with pytest.raises(ValueError, match="camera_height"):
+        TrainConfig(camera_height=(6.0, 13.0))  # the paper's data has its own heights
+    with pytest.raises(ValueError, match="camera_height"):
+        TrainConfig(domain="capture", camera_height=(6.0,))
+    far_run = dict(domain="capture", camera_height=(6.0, 13.0))
+    main(_tiny_train_config(tmp_path / "r", steps=1, ckpt_every=1, **far_run))
+    main(_tiny_train_config(tmp_path / "r", steps=2, ckpt_every=1, **far_run))  # resumes: same data
+    with pytest.raises(ValueError, match="camera_height"):
+        main(_tiny_train_config(tmp_path / "r", steps=3, domain="capture"))
