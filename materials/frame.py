@@ -150,6 +150,17 @@ class Frame:
         v = ((rows + 0.5) * sy - top) / sh  # 0 at the top edge (+y), 1 at the bottom
         return (u - 0.5) * self.plane_size, -(v - 0.5) * self.plane_size
 
+    def photo_plane_distance(self, point: tuple[float, float]) -> torch.Tensor:
+        """``[H, W]`` float32 on the photo's grid: the distance (scene units) from each
+        photo pixel's plane point to the plane point ``(x, y)``, e.g. the point under the
+        flash (the highlight region of a photo, measured on the photo's own pixels)."""
+        h, w = self.photo_size
+        rows, cols = torch.meshgrid(
+            torch.arange(h, dtype=torch.float32), torch.arange(w, dtype=torch.float32), indexing="ij"
+        )
+        x, y = self.pixel_to_plane(rows, cols)
+        return torch.hypot(x - float(point[0]), y - float(point[1]))
+
     def plane_to_pixel(self, x: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Inverse of :meth:`pixel_to_plane`: fractional photo ``(rows, cols)`` of a plane point."""
         (sy, sx), (top, left), (sh, sw) = self.scale, self.origin, self.size

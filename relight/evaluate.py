@@ -100,8 +100,7 @@ class EvalConfig:
                 f"count must be in 1..{len(EVAL_SEEDS) - self.first} (held-out materials from {self.first}), "
                 f"got {self.count}"
             )
-        if not 0 <= self.p_crop <= 1:
-            raise ValueError(f"p_crop must be in [0, 1], got {self.p_crop}")
+        CaptureDomain.relighting(self.p_crop)  # checks p_crop where the domain's probabilities are checked
         if self.size < 8:
             raise ValueError(f"size must be at least 8, got {self.size}")
         if self.chunk < 1 or self.samples < 1:

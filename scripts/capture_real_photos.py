@@ -41,12 +41,7 @@ DISC, RING = 0.5, (0.75, 1.25)
 
 def highlight_ratio(diffuse: torch.Tensor, frame, camera: torch.Tensor) -> float:
     """Mean luminance of ``diffuse [3, H, W]`` (photo grid) in the disc over the ring."""
-    h, w = diffuse.shape[-2:]
-    rows, cols = torch.meshgrid(
-        torch.arange(h, dtype=torch.float32), torch.arange(w, dtype=torch.float32), indexing="ij"
-    )
-    x, y = frame.pixel_to_plane(rows, cols)
-    r = torch.hypot(x - camera[0], y - camera[1])
+    r = frame.photo_plane_distance((camera[0], camera[1]))
     lum = (diffuse * torch.tensor([0.2126, 0.7152, 0.0722])[:, None, None]).sum(0)
     return float(lum[r <= DISC].mean() / lum[(r >= RING[0]) & (r <= RING[1])].mean())
 
@@ -68,12 +63,7 @@ def flash_profile(x: torch.Tensor, frame, camera: torch.Tensor) -> float:
 
     Measured here with hard bins on the photo grid, independently of the soft-binned
     prior (``matcap.capture.priors.FlashRings``) the refinement may use."""
-    h, w = x.shape[-2:]
-    rows, cols = torch.meshgrid(
-        torch.arange(h, dtype=torch.float32), torch.arange(w, dtype=torch.float32), indexing="ij"
-    )
-    px, py = frame.pixel_to_plane(rows, cols)
-    ring = (torch.hypot(px - camera[0], py - camera[1]) / PROFILE_RING).long().flatten()
+    ring = (frame.photo_plane_distance((camera[0], camera[1])) / PROFILE_RING).long().flatten()
     v = torch.log(x.double() + PROFILE_EPS).mean(0).flatten()
     n = torch.zeros(int(ring.max()) + 1, dtype=torch.float64).index_add(0, ring, torch.ones_like(v))
     sums = torch.zeros_like(n).index_add(0, ring, v)

@@ -329,6 +329,19 @@ def test_to_photo_from_another_resolution_follows_the_plane_coordinates():
     assert torch.allclose(r, rows, atol=1e-4) and torch.allclose(c, cols, atol=1e-4)
 
 
+def test_photo_plane_distance_is_zero_at_the_point_and_grows_by_the_pitch():
+    # A non-square photo, resized and padded: the pixel whose plane point is nearest the
+    # given point is the one plane_to_pixel names, and neighbours sit one pitch further
+    # (a pixel of the photo covers pixel_pitch * scale of the plane: it was resized by scale).
+    _, frame = prepare_photo(torch.zeros(3, 120, 80), multiple=8, max_side=64)
+    point = frame.pixel_to_plane(torch.tensor(37.0), torch.tensor(21.0))
+    r = frame.photo_plane_distance((float(point[0]), float(point[1])))
+    assert r.shape == (120, 80)
+    assert float(r[37, 21]) <= 1e-5 and int(r.argmin()) == 37 * 80 + 21
+    pitch = frame.pixel_pitch * frame.scale[1]
+    assert float(r[37, 22]) == pytest.approx(pitch, rel=1e-4)
+
+
 def test_square_plane_keeps_the_pixel_pitch_equal():
     _, frame = prepare_photo(torch.zeros(3, 64, 128), multiple=8)
     width, height = frame.photo_plane_size

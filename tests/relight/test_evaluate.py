@@ -156,7 +156,11 @@ def kernels_tonemap_codes(linear):
 
 @pytest.mark.parametrize(
     "kwargs, message",
-    [(dict(domain="nosuch"), "domain must be one of"), (dict(first=60, count=16), "count must be in 1..")],
+    [
+        (dict(domain="nosuch"), "domain must be one of"),
+        (dict(first=60, count=16), "count must be in 1.."),
+        (dict(p_crop=1.5), "p_crop must be a probability"),
+    ],
 )
 def test_eval_config_checks_domain_and_range(kwargs, message):
     with pytest.raises(ValueError, match=message):
