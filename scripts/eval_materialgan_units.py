@@ -20,6 +20,10 @@ Rows: the shipped estimator on view 0 alone and on all 8 views, fed
 - ``dgrsise geometry`` (the reference the issue compares with): the same materials in the
   paper's evaluation setup, camera and flash at (0, 0, 4), views 1..7 under the
   ``EVAL_LIGHTS``, no falloff, 8-bit.
+- ``centred at 9.76`` (diagnostic, one view): camera and flash at (0, 0, 9.76), no
+  falloff, 8-bit: the MaterialGAN height alone, without its falloff, aiming offset or
+  flash offset, so the gap between the first two one-view rows splits into height and
+  the rest.
 
 No refinement. Scores: re-render PSNR of the predicted vs the true maps under the 16
 ``HELDOUT_LIGHTS`` (``estimator.evaluate.rerender_metrics``) and the map MSEs. Writes
@@ -98,6 +102,14 @@ def paper_views(material: Material) -> tuple[torch.Tensor, torch.Tensor, torch.T
     return inverse_tonemap((tonemap(images) * 255).round() / 255), light, camera.expand(len(light), 3).clone()
 
 
+def centred_view(material: Material, height: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(image ``[1, 3, H, W]`` 8-bit, light_pos, camera_pos ``[1, 3]``): one flash photo
+    from (0, 0, ``height``), no falloff."""
+    pos = torch.tensor([[0.0, 0.0, height]])
+    image = kernels.render(*(t[None] for t in material.map_tensors()), pos[None], pos[0])[0]
+    return inverse_tonemap((tonemap(image) * 255).round() / 255), pos, pos.clone()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, required=True)
@@ -124,9 +136,10 @@ def main() -> None:
                 "raw": (capture.images, capture.light_pos * scale, capture.camera_pos * scale),
                 "model units": (converted.images, converted.light_pos, converted.camera_pos),
                 "dgrsise geometry": paper_views(true),
+                f"centred at {MODEL_HEIGHT}": centred_view(true, MODEL_HEIGHT),
             }
             for feed, (images, light, camera) in feeds.items():
-                for n in (1, VIEWS):
+                for n in sorted({1, min(VIEWS, len(images))}):
                     with torch.no_grad():
                         pred = model(images[None, :n], light[None, :n], camera[None, :n])
                     row = {
