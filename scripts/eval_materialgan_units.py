@@ -43,9 +43,9 @@ import torch
 
 import kernels
 from estimator.evaluate import EVAL_CROP_SEED, MAP_NAMES, rerender_metrics
-from kernels.tonemap import inverse_tonemap, tonemap
+from matcap.capture_eval import as_8bit
 from matcap.estimate import load_estimator
-from materials.capture_domain import CaptureDomain, sample_geometry
+from materials.capture_domain import CaptureDomain, quantize_8bit, sample_geometry
 from materials.dataset import EVAL_SEEDS, GroupConfig, RenderedGroups
 from materials.io.materialgan import read_materialgan
 from materials.types import Capture, Material
@@ -74,7 +74,7 @@ def capture_of(material: Material, index: int) -> Capture:
     maps = [t[None] for t in material.map_tensors()]
     views = [kernels.render(*maps, light[v][None, None], camera[v], preset="materialgan")[0, 0] for v in range(VIEWS)]
     # 8-bit photos: clipped at 1, tone-mapped codes, decoded back as a reader does.
-    images = inverse_tonemap((tonemap(torch.stack(views)) * 255).round() / 255)
+    images = as_8bit(torch.stack(views))
     return Capture(images=images, light_pos=light, camera_pos=camera, preset="materialgan")
 
 
@@ -84,7 +84,7 @@ def write_materialgan(folder: Path, capture: Capture) -> None:
 
     folder.mkdir(parents=True, exist_ok=True)
     for v, img in enumerate(capture.images):
-        codes = (tonemap(img) * 255).round().to(torch.uint8).permute(1, 2, 0).numpy()
+        codes = quantize_8bit(img).permute(1, 2, 0).numpy()
         Image.fromarray(codes).save(folder / f"{v}.png")
     rows = lambda t: "\n".join(" ".join(f"{x:.6f}" for x in r) for r in t.tolist()) + "\n"  # noqa: E731
     (folder / "camera_pos.txt").write_text(rows(capture.camera_pos))
@@ -99,7 +99,7 @@ def paper_views(material: Material) -> tuple[torch.Tensor, torch.Tensor, torch.T
 
     light, camera = eval_lights(include_input=True)
     images = kernels.render(*(t[None] for t in material.map_tensors()), light, camera)[0]
-    return inverse_tonemap((tonemap(images) * 255).round() / 255), light, camera.expand(len(light), 3).clone()
+    return as_8bit(images), light, camera.expand(len(light), 3).clone()
 
 
 def centred_view(material: Material, height: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -107,7 +107,7 @@ def centred_view(material: Material, height: float) -> tuple[torch.Tensor, torch
     from (0, 0, ``height``), no falloff."""
     pos = torch.tensor([[0.0, 0.0, height]])
     image = kernels.render(*(t[None] for t in material.map_tensors()), pos[None], pos[0])[0]
-    return inverse_tonemap((tonemap(image) * 255).round() / 255), pos, pos.clone()
+    return as_8bit(image), pos, pos.clone()
 
 
 def main() -> None:
