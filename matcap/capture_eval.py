@@ -148,6 +148,10 @@ class CaptureEvalConfig:
         flip_every: FLIP on every this-many-th novel light (FLIP is the slow metric).
         photo_vignetting: coefficients of the radial gain applied to the photo (module
             docstring; each <= 0); empty: none.
+        photo_offset: ``(x, y)`` scene units: the photo's camera and flash sit this far
+            from above the centre (a photo taken off-centre), and the novel-light scores
+            are rendered from there. The pipeline is told the centred camera, unless its
+            ``capture.flash_point`` is ``"auto"`` (then it locates the flash itself).
     """
 
     sets: tuple[str, ...] = ("procedural", "inria")
@@ -159,8 +163,11 @@ class CaptureEvalConfig:
     capture: CaptureConfig = field(default_factory=CaptureConfig)
     flip_every: int = 8
     photo_vignetting: tuple[float, ...] = ()
+    photo_offset: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
+        if len(self.photo_offset) != 2 or not all(math.isfinite(v) for v in self.photo_offset):
+            raise ValueError(f"photo_offset must be two finite numbers, got {self.photo_offset}")
         if not all(math.isfinite(a) and a <= 0 for a in self.photo_vignetting):
             raise ValueError(f"photo_vignetting must be finite numbers <= 0, got {self.photo_vignetting}")
         unknown = [s for s in self.sets if s not in SETS] + [r for r in self.runs if r not in RUNS]
@@ -375,7 +382,10 @@ def evaluate(
     missing = sorted({RUNS[r][0] for r in cfg.runs} - {None, "gt"} - set(relighters))
     if missing:
         raise ValueError(f"runs {list(cfg.runs)} need relighters {missing}")
-    camera = camera_from_fov()
+    centred = camera_from_fov()
+    camera = centred + torch.tensor([*cfg.photo_offset, 0.0])
+    # What the pipeline is told: the centred camera, or nothing when it locates the flash.
+    told = None if cfg.capture.flash_point == "auto" else tuple(centred.tolist())
     lights = novel_lights()
     rows: list[dict] = []
     start = time.perf_counter()
@@ -393,7 +403,7 @@ def evaluate(
             relighter = GroundTruthRelighter(item.material) if kind == "gt" else relighters.get(kind) if kind else None
             # Samples apply to a sampling relighter only (the others refuse them).
             samples = cfg.capture.samples if getattr(relighter, "stochastic", False) else 1
-            config = replace(cfg.capture, relit=k, camera=tuple(camera.tolist()), samples=samples)
+            config = replace(cfg.capture, relit=k, camera=told, samples=samples)
             pipe = CapturePipeline(relighter, estimator, config=config)
             t0 = time.perf_counter()
             out = pipe(photo)
@@ -412,6 +422,7 @@ def evaluate(
         # for photos above their native size): two reports differ in them too.
         "relighters": {name: relighter_settings(r) for name, r in relighters.items()},
         "camera": camera.tolist(),
+        "camera_told": None if told is None else list(told),
         "novel_lights": {"count": NOVEL_LIGHT_COUNT, "seed": NOVEL_LIGHT_SEED},
         "rows": rows,
         "summary": summarize(rows),

@@ -26,7 +26,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "material.glb), renders/, relit/, capture/ (rerun with `relight estimate`), preview.png and "
         "provenance.json. PHOTO: a PNG (8/16-bit), JPEG or EXR, 64 to 2048 pixels a side; or "
         "'builtin' / 'builtin:NAME' (a procedural material the project renders under the flash; "
-        "NAME a seed or a family). Scene: the camera and flash above the photo's centre at a 45 "
+        "NAME a seed or a family). Scene: the camera and flash above the photo's flash highlight (or its centre) at a 45 "
         "degree field of view across its long side (or the EXIF focal length, --fov, --camera).",
     )
     p.add_argument("photo", help="flash photo (.png, .jpg, .exr) or 'builtin[:NAME]'")
@@ -35,6 +35,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     where = p.add_mutually_exclusive_group()
     where.add_argument("--camera", metavar="X,Y,Z", help="camera and flash position, scene units (plane of side 4)")
     where.add_argument("--fov", type=float, metavar="DEG", help="field of view across the photo's long side")
+    p.add_argument(
+        "--flash-point",
+        choices=("centre", "auto"),
+        default=None,
+        help="camera and flash above the flash highlight located in the photo (auto, the default: photos are "
+        "rarely taken exactly over the centre; the centre when no clear highlight is found) or above its centre",
+    )
     p.add_argument("--relighter", default="diffusion", metavar="NAME", help="relighting model (default diffusion)")
     p.add_argument("--relighter-checkpoint", type=Path, default=None, help="relighter folder (default: shipped)")
     p.add_argument("--estimator", type=Path, default=None, help="estimator folder (default: the shipped one)")
@@ -212,6 +219,7 @@ def _config(args):
         "falloff": args.falloff,
         "fov": args.fov,
         "camera": parse_position(args.camera, "--camera") if args.camera else None,
+        "flash_point": args.flash_point,
         "max_side": args.max_side,
         "relit_size": args.relit_size,
         "estimate_size": args.estimate_size,

@@ -225,6 +225,20 @@ def _add_capture_parser(what) -> None:
         "(rho in half-sides; each A <= 0), as a flash's beam and a lens do (default none)",
     )
     c.add_argument(
+        "--photo-offset",
+        default=None,
+        metavar="X,Y",
+        help="render the photos with the camera and flash this far (scene units, plane of side 4) from above "
+        "the centre, as an off-centre phone photo (default 0,0)",
+    )
+    c.add_argument(
+        "--flash-point",
+        choices=("centre", "auto"),
+        default=None,
+        help="where the pipeline puts the camera: above the photo's centre or above the flash highlight "
+        "it locates (default: the pipeline's)",
+    )
+    c.add_argument(
         "--relit-weight",
         type=float,
         default=None,
@@ -294,6 +308,7 @@ def run_capture(args) -> int:
             "relit_maps": parse_map_names(args.relit_maps, "--relit-maps", allow_none=False),
             "radial_maps": parse_map_names(args.radial_maps, "--radial-maps"),
             "vignetting": args.vignetting,
+            "flash_point": args.flash_point,
             "photo_maps": parse_map_names(args.photo_maps, "--photo-maps"),
             "shared_step_maps": parse_map_names(args.shared_step_maps, "--shared-step-maps"),
         }
@@ -317,6 +332,7 @@ def run_capture(args) -> int:
             inria=None if args.inria is None else str(args.inria),
             capture=capture,
             photo_vignetting=() if args.photo_vignetting is None else _floats(args.photo_vignetting),
+            photo_offset=(0.0, 0.0) if args.photo_offset is None else _floats(args.photo_offset, "--photo-offset"),
         )
     except ValueError as exc:
         raise UsageError(str(exc)) from None
@@ -384,12 +400,13 @@ def _checkpoints(items: list[str]) -> dict[str, str]:
     return out
 
 
-def _floats(text: str) -> tuple[float, ...]:
-    """``--photo-vignetting`` value -> its numbers (the range is the config's to check)."""
+def _floats(text: str, flag: str = "--photo-vignetting") -> tuple[float, ...]:
+    """``--photo-vignetting`` / ``--photo-offset`` value -> its numbers (the count and
+    range are the config's to check)."""
     try:
         return tuple(float(v) for v in text.split(","))
     except ValueError:
-        raise UsageError(f"--photo-vignetting {text!r} must be comma-separated numbers, e.g. -0.3,-0.05") from None
+        raise UsageError(f"{flag} {text!r} must be comma-separated numbers, e.g. -0.3,-0.05") from None
 
 
 def _steps_list(text: str | None) -> list[int] | None:

@@ -174,13 +174,26 @@ def main(argv: list[str] | None = None) -> int:
         help="half-angle of the flash disc left out of the relit views' loss, degrees (default: the pipeline's)",
     )
     parser.add_argument(
+        "--flash-point",
+        choices=("centre", "auto"),
+        default=None,
+        help="camera over the photo's centre or over its located flash highlight (default: the pipeline's)",
+    )
+    parser.add_argument(
+        "--measure-about",
+        choices=("camera", "located"),
+        default="camera",
+        help="centre of the flash checks: the pipeline's camera, or the flash highlight located in the photo "
+        "(matcap.capture.flash.locate_flash; the same point for every run, to compare runs with different cameras)",
+    )
+    parser.add_argument(
         "--measure-only",
         action="store_true",
         help="no capture and no picture: measure the folders an earlier run left in --work again",
     )
     args = parser.parse_args(argv)
     if args.measure_only:
-        records = [remeasure(path, args.work) for path in args.photos]
+        records = [remeasure(path, args.work, args.measure_about) for path in args.photos]
         _write_records(records, args.out)
         return 0
 
@@ -212,6 +225,8 @@ def main(argv: list[str] | None = None) -> int:
         )
     if args.relit_highlight is not None:
         pipeline.config = replace(pipeline.config, relit_highlight=args.relit_highlight)
+    if args.flash_point is not None:
+        pipeline.config = replace(pipeline.config, flash_point=args.flash_point)
     rows, records = [], []
     side_light = torch.tensor([[3.0, 1.0, 4.0]])
 
@@ -236,7 +251,9 @@ def main(argv: list[str] | None = None) -> int:
             "photo": f"{path.parent.name}/{path.name}",
             "size": list(photo.size),
             "seconds": round(seconds, 1),
-            **measure(photo.image, runs, camera),
+            **measure(photo.image, runs, measure_point(photo.image, with_relit.frame, camera, args.measure_about)),
+            "camera": [round(v, 3) for v in camera.tolist()],
+            "measured_about": args.measure_about,
             "flatness": pipeline.config.flatness,
             "radial": pipeline.config.radial,
             "radial_maps": list(pipeline.config.radial_maps),
@@ -293,7 +310,19 @@ def measure(photo: torch.Tensor, runs: dict, camera: torch.Tensor) -> dict:
     return record
 
 
-def remeasure(path: Path, work: Path) -> dict:
+def measure_point(photo: torch.Tensor, frame, camera: torch.Tensor, about: str) -> torch.Tensor:
+    """``[3]``: the centre of the checks, the pipeline's ``camera`` or (``about`` =
+    "located") the plane point of ``locate_flash(photo)`` at the camera's height."""
+    if about == "camera":
+        return camera
+    from matcap.capture.flash import locate_flash
+
+    point = locate_flash(photo)
+    x, y = frame.pixel_to_plane(torch.tensor(point.row), torch.tensor(point.col))
+    return torch.tensor([float(x), float(y), float(camera[2])])
+
+
+def remeasure(path: Path, work: Path, about: str = "camera") -> dict:
     """``measure`` on the folders an earlier run wrote for ``path`` under ``work``."""
     from materials.frame import Frame
     from materials.io import read_exr, read_photo
@@ -314,7 +343,15 @@ def remeasure(path: Path, work: Path) -> dict:
         "photo": f"{path.parent.name}/{path.name}",
         "size": list(read_photo(path).size),
         "seconds": None,  # not timed again
-        **measure(read_photo(path).image, runs, torch.tensor(prov["relit"]["scene"]["camera_pos"])),
+        **measure(
+            read_photo(path).image,
+            runs,
+            measure_point(
+                read_photo(path).image, runs["relit"][1], torch.tensor(prov["relit"]["scene"]["camera_pos"]), about
+            ),
+        ),
+        "camera": prov["relit"]["scene"]["camera_pos"],
+        "measured_about": about,
         "flatness": settings["flatness"],
         "radial": settings.get("radial", 0.0),
         "radial_maps": settings.get("radial_maps", []),

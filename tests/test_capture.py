@@ -757,6 +757,7 @@ def test_cli_interrupt_leaves_nothing_half_written(tmp_path, estimator_folder, m
 
 def test_help_numbers_match_the_code(capsys):
     from matcap.capture import (
+        DEFAULT_FLASH_POINT,
         DEFAULT_FLATNESS,
         DEFAULT_PHOTO_MAPS,
         DEFAULT_RADIAL,
@@ -783,6 +784,7 @@ def test_help_numbers_match_the_code(capsys):
     assert f"the relit views (default {','.join(DEFAULT_PHOTO_MAPS) or 'none'})" in text
     assert f"Adam per pixel (default {','.join(DEFAULT_SHARED_STEP_MAPS) or 'none'}:" in text
     assert f"at most {MAX_SIDE}" in text and f"relit views, 0-{len(EVAL_LIGHTS)}" in text
+    assert f"in the photo ({DEFAULT_FLASH_POINT}, the default:" in text
 
 
 def test_cli_directx_normals_and_tileable_maps(tmp_path, estimator_folder):

@@ -16,7 +16,7 @@ import torch
 import kernels
 from estimator.config import TINY_TEST_CONFIG
 from estimator.model import SVBRDFEstimator
-from matcap.capture import CaptureConfig
+from matcap.capture import CaptureConfig, locate_flash
 from matcap.capture_eval import (
     RUNS,
     TABLE2,
@@ -35,6 +35,7 @@ from matcap.cli import main
 from materials.camera import camera_from_fov
 from materials.dataset import EVAL_SEEDS
 from materials.domain_groups import save_texture_folder
+from materials.frame import prepare_photo
 from materials.lights import EVAL_LIGHTS
 from materials.procedural import generate
 from relight.interface import get_relighter
@@ -184,6 +185,41 @@ def test_photo_vignetting_darkens_the_photo_the_pipeline_sees(tiny_estimator, mo
     assert float(ratio[:, 31:33, 31:33].mean()) == pytest.approx(1.0, rel=VIGNETTED_8BIT_TOL)
 
 
+def test_photo_offset_moves_the_photos_camera_and_the_pipeline_is_told_the_centre(tiny_estimator, monkeypatch):
+    # The photo is rendered from the offset camera (its brightest point moves there);
+    # the pipeline is told the centred camera, or nothing with flash_point="auto", in
+    # which case it finds the highlight itself.
+    import matcap.capture_eval as capture_eval
+
+    seen = []
+
+    class Recording(capture_eval.CapturePipeline):
+        def __call__(self, photo, **kwargs):
+            out = super().__call__(photo, **kwargs)
+            seen.append((photo.image.clone(), self.config.camera, out.scene.camera_pos.clone()))
+            return out
+
+    monkeypatch.setattr(capture_eval, "CapturePipeline", Recording)
+    centre = CaptureConfig(refine_steps=0, flash_point="centre")
+    cfg = CaptureEvalConfig(sets=("procedural",), count=1, size=64, runs=("alone",), capture=centre, flip_every=64)
+    offset = (0.8, -0.6)
+    report = evaluate(replace(cfg, photo_offset=offset), tiny_estimator, {}, progress=False)
+    centred = camera_from_fov().tolist()
+    assert report["camera"] == pytest.approx([centred[0] + 0.8, centred[1] - 0.6, centred[2]])
+    assert report["camera_told"] == pytest.approx(centred)
+    image, told, used = seen[-1]
+    assert told == pytest.approx(tuple(centred)) and used.tolist() == pytest.approx(centred)
+    auto = replace(cfg, photo_offset=offset, capture=replace(cfg.capture, flash_point="auto"))
+    report = evaluate(auto, tiny_estimator, {}, progress=False)
+    image, told, used = seen[-1]
+    assert report["camera_told"] is None and told is None
+    # The pipeline's camera is over what the locator makes of this photo (the pipeline's
+    # own tests check the locator).
+    point = locate_flash(image)
+    x, y = prepare_photo(image)[1].pixel_to_plane(torch.tensor(point.row), torch.tensor(point.col))
+    assert used.tolist() == pytest.approx([float(x), float(y), centred[2]], abs=1e-5)
+
+
 @pytest.fixture(scope="module")
 def estimator_folder(tmp_path_factory, tiny_estimator):
     folder = tmp_path_factory.mktemp("est") / "tiny"
@@ -232,6 +268,8 @@ def test_cli_eval_capture_writes_the_report(tmp_path, estimator_folder, capsys):
         (["--radial-maps", "gloss"], "--radial-maps takes distinct names"),
         (["--photo-vignetting", "0.3,x"], "must be comma-separated numbers"),
         (["--photo-vignetting", "0.3"], "photo_vignetting must be finite numbers <= 0"),
+        (["--photo-offset", "0.3"], "photo_offset must be two finite numbers"),
+        (["--photo-offset", "a,b"], "--photo-offset 'a,b' must be comma-separated numbers"),
         (["--radial", "-1"], "radial must be a finite number >= 0"),
         (["--relit-weight", "-1"], "relit_weight must be a finite number >= 0"),
         (["--runs", "alone,diffusion", "--checkpoint", "diffusion=/nonexistent"], "/nonexistent"),

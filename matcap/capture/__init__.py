@@ -40,7 +40,10 @@ photo's long side spans the field of view (``materials.camera``): 45 degrees by 
 (the field's convention, Deschaintre et al. 2018), the EXIF 35 mm focal length when the
 file has one (``fov_from_exif``), ``CaptureConfig.fov`` when given; ``CaptureConfig.camera``
 sets the position outright. A square photo at 45 degrees puts the camera at
-(0, 0, 4.83). The relit views' lights are positions in the same units.
+(0, 0, 4.83). By default (``CaptureConfig.flash_point="auto"``) the camera moves over
+the flash highlight located in the photo (``flash.locate_flash``: photos are rarely taken
+exactly over the centre; the centre is kept when there is no clear highlight);
+``flash_point="centre"`` keeps the convention as it is. The relit views' lights are positions in the same units.
 
 Falloff. A real flash's light falls off with 1 / d^2 across the photo; the relighter and
 the estimator were trained without falloff (SPEC section 2, preset ``dgrsise``).
@@ -53,7 +56,8 @@ camera. ``falloff="none"`` takes the photo as it is (the models' convention).
 ``DEFAULT_FALLOFF`` says which one is the default and the measurement behind it.
 
 Package layout, one job a module, each importing only from those before it in this list:
-``config`` the constants and ``CaptureConfig``; ``scene`` ``CaptureScene``, the falloff
+``config`` the constants and ``CaptureConfig``; ``flash`` locating the point under the
+flash in a photo; ``scene`` ``CaptureScene``, the falloff
 factor and the area downsampling; ``photo`` photos without a file (``photo_from_tensor``,
 ``builtin_photo``); ``relighting`` step 3; ``refine`` step 6; ``output``
 ``CaptureOutput``, its folder and the preview sheet; ``provenance`` the record's parts;
@@ -75,6 +79,7 @@ from matcap.capture.config import (
     BUILTIN_SEED,
     BUILTIN_SIZE,
     DEFAULT_FALLOFF,
+    DEFAULT_FLASH_POINT,
     DEFAULT_FLATNESS,
     DEFAULT_PHOTO_MAPS,
     DEFAULT_RADIAL,
@@ -87,6 +92,7 @@ from matcap.capture.config import (
     DEFAULT_RELIT_WEIGHT,
     DEFAULT_SHARED_STEP_MAPS,
     FALLOFFS,
+    FLASH_POINTS,
     MAP_NAMES,
     MAX_SIDE,
     PROVENANCE_JSON,
@@ -95,6 +101,7 @@ from matcap.capture.config import (
     WORKING_SIZE,
     CaptureConfig,
 )
+from matcap.capture.flash import FlashPoint, locate_flash
 from matcap.capture.output import _SHEET_TILE as _SHEET_TILE
 from matcap.capture.output import CaptureOutput
 from matcap.capture.output import _preview_sheet as _preview_sheet
@@ -135,6 +142,10 @@ __all__ = [
     "photo_from_tensor",
     "FALLOFFS",
     "DEFAULT_FALLOFF",
+    "FLASH_POINTS",
+    "DEFAULT_FLASH_POINT",
+    "FlashPoint",
+    "locate_flash",
     "DEFAULT_RELIGHTER",
     "DEFAULT_RELIGHT_STEPS",
     "DEFAULT_FLATNESS",

@@ -17,6 +17,7 @@ from tqdm.auto import tqdm
 import kernels
 from estimator.model import SVBRDFEstimator
 from matcap.capture.config import DEFAULT_RELIGHTER, MAX_SIDE, RENDER_LIGHTS, CaptureConfig
+from matcap.capture.flash import locate_flash
 from matcap.capture.output import CaptureOutput, _preview_sheet
 from matcap.capture.photo import photo_from_tensor
 from matcap.capture.provenance import _component_record, _package_versions
@@ -169,7 +170,10 @@ class CapturePipeline:
     def scene(self, photo: Photo, frame: Frame, config: CaptureConfig) -> CaptureScene:
         """Camera, flash and lights of a prepared photo (``capture_scene``)."""
         lights = torch.tensor(EVAL_LIGHTS[: config.relit], dtype=torch.float32).reshape(-1, 3)
-        return capture_scene(photo, frame, lights, falloff=config.falloff, fov=config.fov, camera=config.camera)
+        located = locate_flash(photo.image) if config.flash_point == "auto" and config.camera is None else None
+        return capture_scene(
+            photo, frame, lights, falloff=config.falloff, fov=config.fov, camera=config.camera, flash_point=located
+        )
 
     # ------------------------------------------------------------------ call
     def __call__(self, photo: Photo | torch.Tensor, *, config: CaptureConfig | None = None, progress: bool = False):

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import torch
 
 from matcap.capture.config import DEFAULT_FALLOFF, RENDER_LIGHTS
+from matcap.capture.flash import FlashPoint
 from materials.camera import DEFAULT_FOV_DEG, camera_height, fov_from_exif
 from materials.frame import Frame
 from materials.highlight import plane_disc
@@ -31,6 +32,8 @@ class CaptureScene:
         relit_light_pos: ``[K, 3]`` lights of the relit views.
         falloff: ``FALLOFFS`` entry.
         plane_size: side of the plane the prepared square spans.
+        flash_point: what ``locate_flash`` found (None when it was not asked or a
+            ``camera`` was given).
     """
 
     camera_pos: torch.Tensor
@@ -39,6 +42,7 @@ class CaptureScene:
     relit_light_pos: torch.Tensor
     falloff: str
     plane_size: float
+    flash_point: FlashPoint | None = None
 
     @property
     def render_kwargs(self) -> dict:
@@ -58,6 +62,7 @@ class CaptureScene:
             "render_light_pos": [self.camera_pos.tolist(), *[list(p) for p in RENDER_LIGHTS]],
             "falloff": self.falloff,
             "plane_size": self.plane_size,
+            "flash_point": None if self.flash_point is None else self.flash_point.to_dict(),
             "render": dict(self.render_kwargs),
         }
 
@@ -116,15 +121,17 @@ def capture_scene(
     falloff: str = DEFAULT_FALLOFF,
     fov: float | None = None,
     camera: tuple[float, float, float] | None = None,
+    flash_point: FlashPoint | None = None,
 ) -> CaptureScene:
     """The scene convention of a phone photo (package docstring): the camera and flash
-    above the photo's centre, at the height where the photo's long side on the plane
-    spans the field of view: ``fov``, else the EXIF focal length, else 45 degrees;
-    ``camera`` overrides all of it.
+    above the photo's centre, or above ``flash_point`` when it was found there, at the
+    height where the photo's long side on the plane spans the field of view: ``fov``,
+    else the EXIF focal length, else 45 degrees; ``camera`` overrides all of it.
 
     Args:
         photo: the ``Photo`` (its EXIF focal length and size); frame: its ``Frame``.
         light_pos: ``[K, 3]`` lights of the relit views (scene units).
+        flash_point: ``matcap.capture.flash.locate_flash`` of the photo, on its pixel grid.
     """
     if camera is not None:
         camera_pos, source, fov_deg = torch.tensor(camera, dtype=torch.float32), "camera", None
@@ -137,7 +144,12 @@ def capture_scene(
         else:
             fov_deg, source = DEFAULT_FOV_DEG, "default"
         height, width = frame.photo_size
-        x, y = frame.pixel_to_plane(torch.tensor((height - 1) / 2), torch.tensor((width - 1) / 2))
+        row, col = (height - 1) / 2, (width - 1) / 2
+        if flash_point is not None and flash_point.found:
+            row, col = flash_point.row, flash_point.col
+        x, y = frame.pixel_to_plane(torch.tensor(row), torch.tensor(col))
         z = camera_height(fov_deg, frame.photo_long_side)
         camera_pos = torch.tensor([float(x), float(y), z], dtype=torch.float32)
-    return CaptureScene(camera_pos, source, fov_deg, light_pos.float().reshape(-1, 3), falloff, frame.plane_size)
+    located = flash_point if camera is None else None
+    lights = light_pos.float().reshape(-1, 3)
+    return CaptureScene(camera_pos, source, fov_deg, lights, falloff, frame.plane_size, located)
