@@ -317,9 +317,8 @@ def measure_point(photo: torch.Tensor, frame, camera: torch.Tensor, about: str) 
         return camera
     from matcap.capture.flash import locate_flash
 
-    point = locate_flash(photo)
-    x, y = frame.pixel_to_plane(torch.tensor(point.row), torch.tensor(point.col))
-    return torch.tensor([float(x), float(y), float(camera[2])])
+    x, y = locate_flash(photo).plane_point(frame)
+    return torch.tensor([x, y, float(camera[2])])
 
 
 def remeasure(path: Path, work: Path, about: str = "camera") -> dict:
@@ -339,17 +338,12 @@ def remeasure(path: Path, work: Path, about: str = "camera") -> dict:
         }
         runs[run] = (Material(**maps), Frame.from_dict(prov[run]["frame"]))
     settings = prov["relit"]["settings"]
+    photo, camera = read_photo(path), torch.tensor(prov["relit"]["scene"]["camera_pos"])
     return {
         "photo": f"{path.parent.name}/{path.name}",
-        "size": list(read_photo(path).size),
+        "size": list(photo.size),
         "seconds": None,  # not timed again
-        **measure(
-            read_photo(path).image,
-            runs,
-            measure_point(
-                read_photo(path).image, runs["relit"][1], torch.tensor(prov["relit"]["scene"]["camera_pos"]), about
-            ),
-        ),
+        **measure(photo.image, runs, measure_point(photo.image, runs["relit"][1], camera, about)),
         "camera": prov["relit"]["scene"]["camera_pos"],
         "measured_about": about,
         "flatness": settings["flatness"],

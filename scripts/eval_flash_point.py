@@ -26,13 +26,7 @@ from pathlib import Path
 import torch
 
 
-def plane_error(point, frame, true_xy) -> float:
-    x, y = frame.pixel_to_plane(torch.tensor(point.row), torch.tensor(point.col))
-    return math.hypot(float(x) - true_xy[0], float(y) - true_xy[1])
-
-
 def synthetic(args) -> list[dict]:
-    from matcap.capture import photo_from_tensor
     from matcap.capture.flash import locate_flash
     from matcap.capture_eval import CaptureEvalConfig, as_8bit, flash_photo, load_materials
     from materials.camera import camera_from_fov
@@ -49,11 +43,11 @@ def synthetic(args) -> list[dict]:
         for _ in range(args.offsets):
             u = (torch.rand(2, generator=g, dtype=torch.float64) * 2 - 1) * args.max_offset
             offsets.append((float(u[0]), float(u[1])))
+        _, frame = prepare_photo(item.material.diffuse)  # the square photo's frame
         for dx, dy in offsets:
             camera = centre + torch.tensor([dx, dy, 0.0])
-            photo = photo_from_tensor(as_8bit(flash_photo(item.material, camera)), item.name, fmt="png")
-            _, frame = prepare_photo(photo.image)
-            point = locate_flash(photo.image)
+            point = locate_flash(as_8bit(flash_photo(item.material, camera)))
+            x, y = point.plane_point(frame)
             rows.append(
                 {
                     "set": item.set,
@@ -61,7 +55,7 @@ def synthetic(args) -> list[dict]:
                     "offset": [round(dx, 3), round(dy, 3)],
                     "found": point.found,
                     "contrast": round(point.contrast, 3),
-                    "error": round(plane_error(point, frame, (dx, dy)), 4),
+                    "error": round(math.hypot(x - dx, y - dy), 4),
                     # What assuming the centre costs: the distance of the true point from it.
                     "centre_error": round(math.hypot(dx, dy), 4),
                 }

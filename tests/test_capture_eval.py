@@ -215,9 +215,8 @@ def test_photo_offset_moves_the_photos_camera_and_the_pipeline_is_told_the_centr
     assert report["camera_told"] is None and told is None
     # The pipeline's camera is over what the locator makes of this photo (the pipeline's
     # own tests check the locator).
-    point = locate_flash(image)
-    x, y = prepare_photo(image)[1].pixel_to_plane(torch.tensor(point.row), torch.tensor(point.col))
-    assert used.tolist() == pytest.approx([float(x), float(y), centred[2]], abs=1e-5)
+    x, y = locate_flash(image).plane_point(prepare_photo(image)[1])
+    assert used.tolist() == pytest.approx([x, y, centred[2]], abs=1e-5)
 
 
 @pytest.fixture(scope="module")

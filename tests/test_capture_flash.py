@@ -50,9 +50,7 @@ def glossy_photo(offset: tuple[float, float], side: int = SIDE, roughness: float
 
 
 def plane_point(point: FlashPoint, image: torch.Tensor) -> tuple[float, float]:
-    _, frame = prepare_photo(image)
-    x, y = frame.pixel_to_plane(torch.tensor(point.row), torch.tensor(point.col))
-    return float(x), float(y)
+    return point.plane_point(prepare_photo(image)[1])
 
 
 @pytest.mark.parametrize("offset", [(0.0, 0.0), (0.6, -0.4), (-0.9, 0.7)])

@@ -26,6 +26,9 @@ from dataclasses import asdict, dataclass
 
 import torch
 import torch.nn.functional as F
+from kornia.filters import gaussian_blur2d
+
+from materials.frame import Frame
 
 __all__ = ["FlashPoint", "locate_flash", "LOCATE_SIDE", "BLUR_FRACTION", "MAX_OFFSET", "MIN_CONTRAST"]
 
@@ -77,17 +80,17 @@ class FlashPoint:
     def to_dict(self) -> dict:
         return {k: (round(v, 3) if isinstance(v, float) else v) for k, v in asdict(self).items()}
 
+    def plane_point(self, frame: Frame) -> tuple[float, float]:
+        """``(x, y)`` scene units: the plane point of this pixel, for the photo's ``frame``."""
+        x, y = frame.pixel_to_plane(torch.tensor(self.row), torch.tensor(self.col))
+        return float(x), float(y)
+
 
 def _gaussian_blur(x: torch.Tensor, sigma: float) -> torch.Tensor:
-    """Separable Gaussian blur of ``[H, W]`` with reflected borders (a border is not dark)."""
-    radius = max(1, math.ceil(3 * sigma))
-    radius = min(radius, x.shape[0] - 1, x.shape[1] - 1)
-    t = torch.arange(-radius, radius + 1, dtype=x.dtype)
-    k = torch.exp(-0.5 * (t / sigma) ** 2)
-    k = k / k.sum()
-    y = F.pad(x[None, None], (radius, radius, radius, radius), mode="reflect")
-    y = F.conv2d(y, k.view(1, 1, 1, -1))
-    return F.conv2d(y, k.view(1, 1, -1, 1))[0, 0]
+    """Gaussian blur of ``[H, W]`` with reflected borders (a border is not dark), taps to
+    3 sigma (fewer when the image is smaller), as ``matcap.capture.priors`` blurs."""
+    radius = min(max(1, math.ceil(3 * sigma)), x.shape[0] - 1, x.shape[1] - 1)
+    return gaussian_blur2d(x[None, None], 2 * radius + 1, (sigma, sigma), border_type="reflect")[0, 0]
 
 
 def _subpixel(values: torch.Tensor, i: int) -> float:

@@ -143,13 +143,15 @@ def capture_scene(
             fov_deg, source = fov_from_exif(photo.focal_35mm, aspect=max(h, w) / min(h, w)), "exif"
         else:
             fov_deg, source = DEFAULT_FOV_DEG, "default"
-        height, width = frame.photo_size
-        row, col = (height - 1) / 2, (width - 1) / 2
         if flash_point is not None and flash_point.found:
-            row, col = flash_point.row, flash_point.col
-        x, y = frame.pixel_to_plane(torch.tensor(row), torch.tensor(col))
+            x, y = flash_point.plane_point(frame)
+        else:
+            height, width = frame.photo_size
+            x, y = (
+                float(v) for v in frame.pixel_to_plane(torch.tensor((height - 1) / 2), torch.tensor((width - 1) / 2))
+            )
         z = camera_height(fov_deg, frame.photo_long_side)
-        camera_pos = torch.tensor([float(x), float(y), z], dtype=torch.float32)
+        camera_pos = torch.tensor([x, y, z], dtype=torch.float32)
     located = flash_point if camera is None else None
     lights = light_pos.float().reshape(-1, 3)
     return CaptureScene(camera_pos, source, fov_deg, lights, falloff, frame.plane_size, located)
