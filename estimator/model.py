@@ -87,17 +87,53 @@ def _silu(x: torch.Tensor) -> torch.Tensor:
     return F.silu(x, inplace=not torch.is_grad_enabled())
 
 
+def _moments_path(x: torch.Tensor) -> bool:
+    """Whether GroupNorm runs from per-channel moments (``_group_affine``): without a graph,
+    in float32 / float64 (under bf16 autocast the moments would be rounded to bf16 and
+    their difference, the variance, lost: torch's GroupNorm accumulates in float32)."""
+    return not torch.is_grad_enabled() and x.dtype in (torch.float32, torch.float64)
+
+
 def _view_mean_max(x: torch.Tensor, views: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Mean and max over views: ``[B * V, C, h, w]`` -> two ``[B, C, h, w]``, in ``x``'s
     memory layout. A running sum and maximum over the V slices: each step reads two
     contiguous tensors, where ``mean(1)`` of the ``[B, V, ...]`` view of a channels-last
     tensor walks a strided dimension (5-25x slower on the CPU)."""
     xv = x.unflatten(0, (-1, views))
+    if views > 1 and not torch.is_grad_enabled():
+        # In place into two fresh buffers: no allocation (and page faults) per view.
+        total, top = xv[:, 0] + xv[:, 1], torch.maximum(xv[:, 0], xv[:, 1])
+        for i in range(2, views):
+            total.add_(xv[:, i])
+            torch.maximum(top, xv[:, i], out=top)
+        return total.div_(views), top
     total, top = xv[:, 0], xv[:, 0]
     for i in range(1, views):
         total = total + xv[:, i]
         top = torch.maximum(top, xv[:, i])
     return total / views, top
+
+
+def _cat_channels_last(parts: Sequence[torch.Tensor]) -> torch.Tensor:
+    """``torch.cat(parts, dim=1)`` written straight into one channels-last buffer (each
+    part ``[N, C_i, h, w]``, any layout, stride-0 repeats included; differentiable).
+
+    ``torch.cat`` returns NCHW unless every part is channels-last, and converting that back
+    is a second full-resolution copy (at 1024 px, 8 views, 48 channels: 1.6 GB)."""
+    out = _channels_last_buffer(parts)
+    at = 0
+    for t in parts:
+        out[:, at : at + t.shape[1]] = t
+        at += t.shape[1]
+    return out
+
+
+def _channels_last_buffer(parts: Sequence[torch.Tensor]) -> torch.Tensor:
+    """An uninitialised channels-last ``[N, sum C_i, h, w]`` for ``parts`` ``[N, C_i, h, w]``."""
+    n, _, h, w = parts[0].shape
+    width = sum(t.shape[1] for t in parts)
+    strides = (width * h * w, 1, w * width, width)
+    return torch.empty_strided((n, width, h, w), strides, dtype=parts[0].dtype, device=parts[0].device)
 
 
 def _repeat_views(shared: torch.Tensor, views: int) -> torch.Tensor:
@@ -114,7 +150,13 @@ class ConvBlock(nn.Module):
         self.norm = nn.GroupNorm(_groups(cout, groups), cout)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return _silu(self.norm(self.conv(x)))
+        y = self.conv(x)
+        if not _moments_path(y):
+            return _silu(self.norm(y))
+        # Without a graph: the GroupNorm as an affine from per-channel moments, in place
+        # on the conv's output (torch's CPU GroupNorm was 3-6x slower at full resolution).
+        scale, shift = _group_affine(self.norm, *_channel_moments(y))
+        return F.silu(y.mul_(scale[..., None, None]).add_(shift[..., None, None]), inplace=True)
 
 
 class CrossViewMix(nn.Module):
@@ -129,18 +171,84 @@ class CrossViewMix(nn.Module):
         self.proj = nn.Conv2d(3 * channels, channels, 1)
 
     def forward(self, x: torch.Tensor, views: int) -> torch.Tensor:
-        n, c, h, w = x.shape
+        if _moments_path(x):
+            return self._forward_no_grad(x, views)
         mean, top = _view_mean_max(x, views)
-        # Written into one channels-last buffer: torch.cat with the views' repeated
-        # (stride-0) mean would return NCHW, and converting back costs a second
-        # full-resolution copy (at 1024 px, 8 views: 1.6 GB each).
-        joint = torch.empty_strided(
-            (n, 3 * c, h, w), (3 * c * h * w, 1, w * 3 * c, 3 * c), dtype=x.dtype, device=x.device
-        )
-        joint[:, :c] = x
-        joint[:, c : 2 * c] = _repeat_views(mean, views)
-        joint[:, 2 * c :] = _repeat_views(top, views)
+        joint = _cat_channels_last([x, _repeat_views(mean, views), _repeat_views(top, views)])
         return x + self.proj(_silu(self.norm(joint)))
+
+    def _forward_no_grad(self, x: torch.Tensor, views: int) -> torch.Tensor:
+        """``forward`` without building ``[f_v, mean, max]``: the same numbers up to
+        summation order, 3-5x less memory traffic at full resolution (``DESIGN.md``,
+        "Resolution").
+
+        GroupNorm's statistics of the joint tensor are those of its channels, and the
+        channels of the view mean and max are the same for every view of a material. So
+        the statistics come from per-channel moments (the 1 / V-sized mean and max at
+        material batch size), the normalisation is one per-channel affine, and the 1x1
+        projection splits by input channel: the views' own channels (and any mean / max
+        channel whose group also holds view channels, so its affine differs per view) at
+        ``B * V``, the rest once per material at ``B``, broadcast over its views.
+        """
+        n, c, h, w = x.shape
+        b = n // views
+        mean, top = _view_mean_max(x, views)
+        shared = torch.cat([mean, top], dim=1)  # [B, 2C, h, w]
+        m1x, m2x = _channel_moments(x)
+        m1s, m2s = _channel_moments(shared)
+        m1 = torch.cat([m1x, m1s.repeat_interleave(views, 0)], 1)  # [B * V, 3C]
+        m2 = torch.cat([m2x, m2s.repeat_interleave(views, 0)], 1)
+        scale, shift = _group_affine(self.norm, m1, m2)  # [B * V, 3C]
+        weight = self.proj.weight[:, :, 0, 0]  # [C_out, 3C]
+
+        def project(parts: list[torch.Tensor], cols: slice, rows: slice, bias=None) -> torch.Tensor:
+            """SiLU(scale * [parts] + shift) of joint channels ``cols`` into one
+            channels-last buffer, then their columns of the 1x1 projection (one conv: a
+            2-channel one alone is slow in oneDNN); ``rows`` picks the affine's samples."""
+            sc, sh = scale[rows, cols], shift[rows, cols]
+            y = _channels_last_buffer(parts)
+            at = 0
+            for t in parts:
+                k = slice(at, at + t.shape[1])
+                torch.addcmul(sh[:, k, None, None], t, sc[:, k, None, None], out=y[:, k])
+                at += t.shape[1]
+            return F.conv2d(F.silu(y, inplace=True), weight[:, cols, None, None].contiguous(), bias)
+
+        # Joint channels from c on whose group starts before c share an affine that
+        # differs per view; the rest are the same for all views of a material.
+        split = c + (-c % (3 * c // self.norm.num_groups))
+        own = [x] + ([_repeat_views(shared[:, : split - c], views)] if split > c else [])
+        out = project(own, slice(0, split), slice(None), self.proj.bias)
+        if split < 3 * c:
+            # Once per material, with its first view's affine (all its views agree).
+            common = project([shared[:, split - c :]], slice(split, 3 * c), slice(None, None, views))
+            out.unflatten(0, (b, views)).add_(common[:, None])
+        return out.add_(x)
+
+
+def _group_affine(norm: nn.GroupNorm, m1: torch.Tensor, m2: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``norm`` as a per-channel affine ``x * scale + shift`` from the per-channel moments
+    ``m1``, ``m2`` ``[N, C]`` (``_channel_moments``): GroupNorm's group mean and biased
+    variance are the means of its channels' moments. Returns two ``[N, C]``."""
+    n, c = m1.shape
+    groups = norm.num_groups
+    g1 = m1.view(n, groups, -1).mean(-1)
+    var = (m2.view(n, groups, -1).mean(-1) - g1 * g1).clamp_min(0)
+    per = c // groups
+    scale = norm.weight[None] * torch.rsqrt(var + norm.eps).repeat_interleave(per, 1)
+    return scale, norm.bias[None] - g1.repeat_interleave(per, 1) * scale
+
+
+def _channel_moments(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-channel mean and mean square over the pixels: ``[N, C, h, w]`` -> two ``[N, C]``.
+
+    On a channels-last tensor ``[N, h * w, C]`` is a free view; the mean square is the
+    diagonal of its Gram matrix (one BLAS pass over the pixels, no squared copy)."""
+    n, c, h, w = x.shape
+    flat = x.permute(0, 2, 3, 1).reshape(n, h * w, c)
+    m1 = flat.mean(1)
+    m2 = torch.bmm(flat.transpose(1, 2), flat).diagonal(dim1=1, dim2=2) / (h * w)
+    return m1, m2
 
 
 class ViewPool(nn.Module):
@@ -186,8 +294,7 @@ class ShadingBranch(nn.Module):
         """``encoded``, ``log_image``: ``[B, V, 3, H, W]``; ``lvh``: ``[B, V, 9, H, W]``."""
         views = log_image.shape[1]
         ratio = (log_image - log_image.mean(1, keepdim=True)) * RATIO_SCALE
-        x = torch.cat([encoded, ratio, lvh], dim=2).flatten(0, 1)
-        x = self.encode(x.contiguous(memory_format=torch.channels_last))
+        x = self.encode(_cat_channels_last([encoded.flatten(0, 1), ratio.flatten(0, 1), lvh.flatten(0, 1)]))
         return self.pool(self.post(self.mix(x, views)), views)
 
 
@@ -382,7 +489,7 @@ class SVBRDFEstimator(StrictLoadingMixin, ModelMixin, ConfigMixin):
         log_image = torch.log(images.to(dtype).clamp_min(0) + kernels.LOG_EPS)
         encoded = (log_image + INPUT_SHIFT) * INPUT_SCALE
         lvh = lvh.to(encoded.device)
-        x = torch.cat([encoded, lvh], dim=2).flatten(0, 1).contiguous(memory_format=torch.channels_last)
+        x = _cat_channels_last([encoded.flatten(0, 1), lvh.flatten(0, 1)])
         flags = self._generated_flags(generated, b, v, x)
         pyramid = []
         for i, (enc, mix, pool) in enumerate(zip(self.encoder, self.mix, self.pool)):

@@ -217,17 +217,26 @@ def test_no_shading_branch_and_old_checkpoints(tmp_path, random_views):
 LAYOUT_ATOL = 1e-12
 
 
-@pytest.mark.parametrize("batch", [1, 2])
-def test_view_mean_max_and_mix_match_the_reference_layout(batch):
-    """``_view_mean_max`` and ``CrossViewMix`` (channels-last buffers, running sums) equal
-    the plain formulas ``mean(1)`` / ``amax(1)`` and ``f_v + conv1x1(SiLU(GN([f_v, mean,
-    max])))`` on NCHW tensors, for one and several materials, with and without autograd;
-    the gradient too."""
+@pytest.mark.parametrize(
+    "batch, c, groups",
+    [
+        (1, 8, 4),  # GroupNorm groups of 6 over [f, mean, max] of 8: one group straddles f and mean
+        (2, 8, 4),
+        (2, 6, 3),  # groups of 6 that align with the three parts: no straddling group
+        (2, 4, 1),  # one group over all 12 channels: every channel's affine is per view
+    ],
+)
+def test_view_mean_max_and_mix_match_the_reference_layout(batch, c, groups):
+    """``_view_mean_max`` and ``CrossViewMix`` (channels-last buffers, running sums, and
+    without autograd the GroupNorm from per-channel moments, split per view / per
+    material) equal the plain formulas ``mean(1)`` / ``amax(1)`` and ``f_v +
+    conv1x1(SiLU(GN([f_v, mean, max])))`` on NCHW tensors, for one and several
+    materials, with and without autograd; the gradient too."""
     import torch.nn.functional as F
 
     from estimator.model import CrossViewMix, _view_mean_max
 
-    views, c = 3, 8
+    views = 3
     gen = torch.Generator().manual_seed(0)
     x = torch.randn(batch * views, c, 5, 6, generator=gen, dtype=torch.float64)
     xv = x.unflatten(0, (batch, views))
@@ -236,7 +245,8 @@ def test_view_mean_max_and_mix_match_the_reference_layout(batch):
         torch.testing.assert_close(mean, xv.mean(1), atol=LAYOUT_ATOL, rtol=0)
         torch.testing.assert_close(top, xv.amax(1), atol=0, rtol=0)
 
-    mix = CrossViewMix(c, groups=4).double()
+    mix = CrossViewMix(c, groups=groups).double()
+    assert mix.norm.num_groups == groups
     with torch.no_grad():
         mix.norm.weight.normal_(generator=gen)
         mix.norm.bias.normal_(generator=gen)
@@ -244,6 +254,8 @@ def test_view_mean_max_and_mix_match_the_reference_layout(batch):
     expected = (x + mix.proj(F.silu(mix.norm(joint.flatten(0, 1))))).detach()
     with torch.no_grad():
         torch.testing.assert_close(mix(x, views), expected, atol=LAYOUT_ATOL, rtol=0)
+        channels_last = x.contiguous(memory_format=torch.channels_last)
+        torch.testing.assert_close(mix(channels_last, views), expected, atol=LAYOUT_ATOL, rtol=0)
     xg = x.clone().requires_grad_(True)
     (mix(xg, views) * expected).sum().backward()
     xr = x.clone().requires_grad_(True)
@@ -256,6 +268,42 @@ def test_view_mean_max_and_mix_match_the_reference_layout(batch):
 #: The same float32 convs on the same inputs in another call: maps in [0, 1] agree to a
 #: few ulps (oneDNN may pick another kernel order); 1e-6 is ~8 ulps at 1.
 SAME_CONVS_TOL = 1e-6
+
+
+#: Float32 against float64 at full resolution, 8 views: the per-channel moments path
+#: (BLAS-accumulated sums of 1M pixels) lands within ~1e-6 of float64 on the shipped model
+#: at 1024 px; 2e-5 leaves room for other BLAS summation orders (Intel and AMD), and is 30x
+#: below what torch's float32 GroupNorm missed by there (6e-4).
+MOMENTS_FP32_ATOL = 2e-5
+
+
+def test_conv_block_without_graph_is_groupnorm_silu():
+    """``ConvBlock`` without autograd (the GroupNorm as an affine from per-channel
+    moments, in place) equals conv -> GroupNorm -> SiLU: in float64 to rounding, in
+    float32 against float64 at a side large enough for float32 sums to drift (256 px);
+    under bf16 autocast it keeps torch's GroupNorm (bf16 moments would lose the variance)."""
+    import torch.nn.functional as F
+
+    from estimator.model import ConvBlock, _moments_path
+
+    gen = torch.Generator().manual_seed(1)
+    block = ConvBlock(5, 12, groups=4).double()
+    with torch.no_grad():
+        block.norm.weight.normal_(generator=gen)
+        block.norm.bias.normal_(generator=gen)
+    # Features with a mean far from zero: the moments' difference is where precision goes.
+    x = (torch.randn(3, 5, 256, 256, generator=gen, dtype=torch.float64) + 3.0).contiguous(
+        memory_format=torch.channels_last
+    )
+    expected = F.silu(block.norm(block.conv(x))).detach()
+    with torch.no_grad():
+        torch.testing.assert_close(block(x), expected, atol=LAYOUT_ATOL, rtol=0)
+        block32 = copy.deepcopy(block).float()
+        torch.testing.assert_close(block32(x.float()).double(), expected, atol=MOMENTS_FP32_ATOL, rtol=0)
+        assert _moments_path(x.float()) and not _moments_path(x.bfloat16())
+    assert not _moments_path(x.float())  # autograd on: the graph path
+    with torch.enable_grad():
+        torch.testing.assert_close(block(x), expected, atol=0, rtol=0)
 
 
 def test_generated_flag_marks_views_and_starts_as_a_no_op():
