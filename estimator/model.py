@@ -40,7 +40,9 @@ oneDNN runs these narrow convs (12-48 channels) 2-4x faster in NHWC, and the vie
 max are running sums over views (contiguous adds) rather than a reduction over a strided
 dimension; whole 1024 px, 8 views: 31 s -> 21 s (``estimator/DESIGN.md``, "Resolution").
 Without autograd (inference) SiLU runs in place, which saves one full-resolution
-allocation per block.
+allocation per block, and GroupNorm is a per-channel affine from per-channel moments
+(``_group_affine``), so the cross-view mix never builds its 3C-channel input: 1024 px,
+8 views, 19.5 s -> 10.6 s (``estimator/DESIGN.md``, "Resolution").
 """
 
 from __future__ import annotations
